@@ -1,0 +1,55 @@
+"""ament_python package train_calib: builds with colcon in a ROS 2 workspace and installs with pip."""
+
+from glob import glob
+from pathlib import Path
+
+from setuptools import find_packages, setup
+
+PACKAGE = "train_calib"
+
+# Every node is its own executable so `ros2 run train_calib <node>` works in a full ROS install.
+NODES = [
+    "gnss_speed_node",
+    "ukf_node",
+    "regime_node",
+    "feature_node",
+    "window_calib_node",
+]
+
+
+def _files(pattern: str) -> list[str]:
+    return sorted(p for p in glob(pattern) if Path(p).is_file())
+
+
+def _tree(top: str) -> list[tuple[str, list[str]]]:
+    """data_files entries installing every file under `top` to share/<package>/<top>/..."""
+    entries = []
+    for folder in sorted({str(p.parent) for p in Path(top).rglob("*") if p.is_file()}):
+        entries.append((f"share/{PACKAGE}/{folder}", _files(f"{folder}/*")))
+    return entries
+
+
+setup(
+    name=PACKAGE,
+    version="0.1.0",
+    packages=find_packages(include=[PACKAGE, f"{PACKAGE}.*"]),
+    python_requires=">=3.10",
+    data_files=[
+        ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
+        (f"share/{PACKAGE}", ["package.xml"]),
+        (f"share/{PACKAGE}/launch", _files("launch/*.launch.py")),
+        *_tree("config"),
+        *_tree("bags"),
+    ],
+    install_requires=["setuptools"],
+    zip_safe=True,
+    maintainer="train_calib maintainers",
+    maintainer_email="train-calib@example.org",
+    description="Real-time train motion model calibration (UKF, regimes, features) for ROS 2",
+    license="Apache-2.0",
+    tests_require=["pytest"],
+    entry_points={
+        "console_scripts": [f"train-calib = {PACKAGE}.cli:main"]
+        + [f"{node} = {PACKAGE}.nodes.{node}:main" for node in NODES],
+    },
+)

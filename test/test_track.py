@@ -1,0 +1,120 @@
+"""Track file loading, validation and the functions of position."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import yaml
+
+from train_calib.errors import ConfigError
+from train_calib.physics import GRAVITY
+from train_calib.track import load_track
+
+
+@pytest.fixture
+def track(data_dir):
+    return load_track(data_dir / "small_track.yaml")
+
+
+def test_loads_all_parts(track):
+    assert track.name == "small-test-line"
+    assert track.length_m == 3000.0
+    assert [s.name for s in track.stations] == ["Alpha", "Beta"]
+    assert [(t.start_m, t.end_m) for t in track.tunnels] == [(1200.0, 1600.0)]
+    assert [s.id for s in track.sections] == ["S1", "S2", "S3"]
+    assert track.speed_limit_at(100.0) == pytest.approx(40 / 3.6)
+    assert track.speed_limit_at(1000.0) == pytest.approx(140 / 3.6)
+
+
+def test_point_force_is_gradient_plus_curve(track):
+    assert track.track_force(500.0) == pytest.approx(0.0)
+    assert track.track_force(1200.0) == pytest.approx(GRAVITY * 0.005)
+    assert track.track_force(1700.0) == pytest.approx(GRAVITY * (0.005 + 0.7 / 1000))
+    assert track.track_force(2700.0) == pytest.approx(GRAVITY * -0.003)
+
+
+def test_force_is_averaged_over_train_length(track):
+    # head at 1050, tail at 950: 50 m on the level, 50 m on +5 permille
+    assert track.track_force(1050.0, 100.0) == pytest.approx(GRAVITY * 0.0025)
+    # against a numerical mean over 2001 points, for many positions at once
+    heads = np.linspace(100.0, 2999.0, 57)
+    numeric = [np.mean(track.track_force(np.linspace(h - 150.0, h, 20001))) for h in heads]
+    assert np.allclose(track.track_force(heads, 150.0), numeric, atol=2e-5)
+
+
+def test_tunnel_fraction(track):
+    assert track.tunnel_fraction(1100.0, 100.0) == pytest.approx(0.0)
+    assert track.tunnel_fraction(1250.0, 100.0) == pytest.approx(0.5)
+    assert track.tunnel_fraction(1400.0, 100.0) == pytest.approx(1.0)
+
+
+def test_limit_over_train_waits_for_the_tail(track):
+    assert track.limit_over_train(450.0, 100.0) == pytest.approx(40 / 3.6)
+    assert track.limit_over_train(550.0, 100.0) == pytest.approx(140 / 3.6)
+
+
+def test_latlon_round_trip_through_projection(track):
+    for s in np.linspace(0.0, 3000.0, 31):
+        lat, lon = track.latlon_at(s)
+        s_back, dist = track.project_latlon(float(lat), float(lon))
+        assert s_back == pytest.approx(s, abs=1e-3)
+        assert dist < 1e-3
+
+
+def test_projection_of_an_offset_point_and_window(track):
+    east, north = track.enu_at(1500.0)
+    s, dist = track.project(float(east) + 30.0, float(north))
+    assert s == pytest.approx(1500.0, abs=0.5) and dist == pytest.approx(30.0, abs=0.5)
+    s, dist = track.project(float(east), float(north), s_min_m=1800.0, s_max_m=2000.0)
+    assert s == pytest.approx(1800.0) and dist == pytest.approx(300.0, abs=1.0)
+
+
+def _write(tmp_path, data, name="track.yaml"):
+    path = tmp_path / name
+    path.write_text(yaml.safe_dump(data))
+    return path
+
+
+def _valid(data_dir):
+    return yaml.safe_load((data_dir / "small_track.yaml").read_text())
+
+
+@pytest.mark.parametrize(
+    "mutate, key, problem",
+    [
+        (lambda d: d.pop("gradients"), "gradients", "missing required key"),
+        (lambda d: d.update(length_m="long"), "length_m", "expected a number"),
+        (lambda d: d["speed_limits"][1].update(kmh=-5), "speed_limits[1].kmh", "out of range"),
+        (lambda d: d["gradients"][2].update(s_m=500), "gradients[2].s_m", "strictly increasing"),
+        (lambda d: d.update(geometry=[]), "geometry", "at least 2 entries"),
+        (lambda d: d["gradients"][1].update(permille=250), "gradients[1].permille", "out of range"),
+        (lambda d: d["geometry"][1].update(lat=5.0, lon=52.008993), "geometry[1]", "swapped"),
+        (lambda d: d["tunnels"][0].update(end_m=1100), "tunnels[0].end_m", "greater than start_m"),
+        (lambda d: d["sections"][1].update(id="S1"), "sections[1].id", "duplicate"),
+        (lambda d: d["stations"][0].pop("name"), "stations[0].name", "missing required key"),
+        (lambda d: d["gradients"][0].update(s_m=10), "gradients[0].s_m", "must be at s_m 0"),
+    ],
+)
+def test_invalid_files_are_refused_in_one_line(tmp_path, data_dir, mutate, key, problem):
+    data = _valid(data_dir)
+    mutate(data)
+    path = _write(tmp_path, data)
+    with pytest.raises(ConfigError) as err:
+        load_track(path)
+    message = str(err.value)
+    assert "\n" not in message
+    assert message.startswith(f"{path}: {key}: "), message
+    assert problem in message
+
+
+def test_unreadable_and_invalid_yaml(tmp_path):
+    with pytest.raises(ConfigError, match="track file not found"):
+        load_track(tmp_path / "missing.yaml")
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("name: [unclosed\n")
+    with pytest.raises(ConfigError, match=r"bad.yaml: invalid YAML at line \d+"):
+        load_track(bad)
+    listy = tmp_path / "list.yaml"
+    listy.write_text("- 1\n- 2\n")
+    with pytest.raises(ConfigError, match="expected a mapping"):
+        load_track(listy)

@@ -1,0 +1,236 @@
+"""Reading and writing MCAP bags in the rosbag2 layout, without ROS.
+
+Bags are written with ``rosbags`` (rosbag2 directory: ``metadata.yaml`` + ``<name>_0.mcap``, message
+definitions embedded) and read with the ``mcap`` reader, which opens both such a directory and a
+bare ``.mcap`` file. CDR bytes are those rclpy produces, so a recorder can store rclpy's serialized
+messages as they are.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass
+from functools import lru_cache
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from .errors import BagError
+from .paths import msg_dir
+
+GNSS_TOPIC = "/gnss/fix"
+SPEED_TOPIC = "/train/speed"
+POWER_TOPIC = "/train/traction_power"
+
+INPUT_TOPICS: dict[str, str] = {
+    GNSS_TOPIC: "sensor_msgs/msg/NavSatFix",
+    SPEED_TOPIC: "geometry_msgs/msg/TwistStamped",
+    POWER_TOPIC: "train_calib_msgs/msg/TractionPower",
+}
+
+OUTPUT_TOPICS: dict[str, str] = {
+    "/train_calib/measurement": "train_calib_msgs/msg/TrackMeasurement",
+    "/train_calib/resistance": "train_calib_msgs/msg/ResistanceEstimate",
+    "/train_calib/regime": "train_calib_msgs/msg/DrivingRegime",
+    "/train_calib/features": "train_calib_msgs/msg/DrivingFeatures",
+    "/train_calib/window_resistance": "train_calib_msgs/msg/WindowResistance",
+    "/diagnostics": "diagnostic_msgs/msg/DiagnosticArray",
+}
+
+
+@lru_cache(maxsize=1)
+def typestore():
+    """A rosbags typestore with the ROS 2 Jazzy types and train_calib_msgs registered."""
+    from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+
+    store = get_typestore(Stores.ROS2_JAZZY)
+    types: dict[str, Any] = {}
+    for path in sorted(msg_dir().glob("*.msg")):
+        types.update(get_types_from_msg(path.read_text(encoding="utf-8"), f"train_calib_msgs/msg/{path.stem}"))
+    store.register(types)
+    return store
+
+
+def msg_class(msgtype: str):
+    """The rosbags dataclass of a message type, e.g. ``msg_class('sensor_msgs/msg/NavSatFix')``."""
+    return typestore().types[msgtype]
+
+
+def stamp_ns(header: Any) -> int:
+    """Nanoseconds of a std_msgs/Header stamp (rosbags or rclpy message)."""
+    return int(header.stamp.sec) * 1_000_000_000 + int(header.stamp.nanosec)
+
+
+def make_header(t_ns: int, frame_id: str = ""):
+    """A rosbags std_msgs/Header for a time in ns."""
+    store = typestore()
+    Time = store.types["builtin_interfaces/msg/Time"]
+    Header = store.types["std_msgs/msg/Header"]
+    return Header(stamp=Time(sec=int(t_ns // 1_000_000_000), nanosec=int(t_ns % 1_000_000_000)), frame_id=frame_id)
+
+
+class BagWriter:
+    """Write messages to a rosbag2 directory with MCAP storage (context manager).
+
+    Topics are added on first use from ``topics`` (topic -> type). ``close()`` (also on exit, and
+    from a signal handler) writes the MCAP summary and ``metadata.yaml``.
+    """
+
+    def __init__(self, path: str | Path, topics: dict[str, str]) -> None:
+        from rosbags.rosbag2 import StoragePlugin, Writer
+
+        self.path = Path(path)
+        if self.path.exists():
+            raise BagError(f"{self.path}: output bag already exists")
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self._topics = dict(topics)
+        self._writer = Writer(self.path, version=9, storage_plugin=StoragePlugin.MCAP)
+        self._writer.open()
+        self._connections: dict[str, Any] = {}
+        self.count = 0
+        self._closed = False
+
+    def _connection(self, topic: str):
+        conn = self._connections.get(topic)
+        if conn is None:
+            msgtype = self._topics.get(topic)
+            if msgtype is None:
+                raise BagError(f"{self.path}: topic {topic} was not declared for this bag")
+            conn = self._writer.add_connection(topic, msgtype, typestore=typestore())
+            self._connections[topic] = conn
+        return conn
+
+    def write(self, topic: str, msg: Any, t_ns: int) -> None:
+        """Serialize a rosbags message and write it with log time t_ns."""
+        conn = self._connection(topic)
+        self._writer.write(conn, int(t_ns), typestore().serialize_cdr(msg, conn.msgtype))
+        self.count += 1
+
+    def write_raw(self, topic: str, cdr: bytes | memoryview, t_ns: int) -> None:
+        """Write already serialized CDR bytes (e.g. from an rclpy raw subscription)."""
+        self._writer.write(self._connection(topic), int(t_ns), cdr)
+        self.count += 1
+
+    def close(self) -> None:
+        if not self._closed:
+            self._closed = True
+            self._writer.close()
+
+    def __enter__(self) -> BagWriter:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+@dataclass
+class BagMessage:
+    topic: str
+    msgtype: str
+    log_time_ns: int
+    data: bytes
+
+    def decode(self) -> Any:
+        return typestore().deserialize_cdr(self.data, self.msgtype)
+
+
+def mcap_files(path: str | Path) -> list[Path]:
+    """The MCAP files of a bag: a rosbag2 directory (in metadata order) or a bare .mcap file."""
+    path = Path(path)
+    if path.is_file():
+        return [path]
+    if not path.is_dir():
+        raise BagError(f"{path}: no such bag (expected a rosbag2 directory or an .mcap file)")
+    meta = path / "metadata.yaml"
+    if meta.is_file():
+        try:
+            info = yaml.safe_load(meta.read_text(encoding="utf-8"))["rosbag2_bagfile_information"]
+            files = [path / rel for rel in info["relative_file_paths"]]
+        except Exception as exc:
+            raise BagError(f"{meta}: unreadable rosbag2 metadata: {exc}") from None
+        missing = [f for f in files if not f.is_file()]
+        if missing:
+            raise BagError(f"{missing[0]}: listed in {meta.name} but missing")
+        return files
+    files = sorted(path.glob("*.mcap"))
+    if not files:
+        raise BagError(f"{path}: directory holds no metadata.yaml and no .mcap file")
+    return files
+
+
+def bag_topics(path: str | Path) -> dict[str, str]:
+    """Topic -> message type of every channel in the bag."""
+    from mcap.reader import make_reader
+
+    topics: dict[str, str] = {}
+    for file in mcap_files(path):
+        try:
+            with open(file, "rb") as stream:
+                summary = make_reader(stream).get_summary()
+        except Exception as exc:
+            raise BagError(f"{file}: not a readable MCAP file: {exc}") from None
+        if summary is None:
+            raise BagError(f"{file}: MCAP file has no summary (truncated?)")
+        for channel in summary.channels.values():
+            schema = summary.schemas.get(channel.schema_id)
+            topics[channel.topic] = schema.name if schema else ""
+    return topics
+
+
+def iter_bag(path: str | Path, topics: Iterable[str] | None = None) -> Iterator[BagMessage]:
+    """Messages of the bag in log-time order, optionally only of some topics.
+
+    A damaged file yields every message before the damage, then raises BagError naming the file.
+    """
+    from mcap.reader import make_reader
+
+    wanted = set(topics) if topics is not None else None
+    for file in mcap_files(path):
+        try:
+            stream = open(file, "rb")  # noqa: SIM115 - closed by the with below, after the error mapping
+        except OSError as exc:
+            raise BagError(f"{file}: cannot open: {exc.strerror or exc}") from None
+        with stream:
+            try:
+                reader = make_reader(stream)
+                for schema, channel, message in reader.iter_messages(
+                    topics=list(wanted) if wanted is not None else None, log_time_order=True
+                ):
+                    yield BagMessage(channel.topic, schema.name if schema else "", message.log_time, message.data)
+            except BagError:
+                raise
+            except Exception as exc:
+                raise BagError(f"{file}: corrupt or truncated MCAP ({exc.__class__.__name__}: {exc})") from None
+
+
+def bag_name(path: str | Path) -> str:
+    path = Path(path)
+    return path.stem if path.is_file() else path.name
+
+
+def file_size(path: str | Path) -> int:
+    path = Path(path)
+    if path.is_file():
+        return path.stat().st_size
+    return sum(f.stat().st_size for f in path.rglob("*") if f.is_file()) if path.is_dir() else 0
+
+
+__all__ = [
+    "GNSS_TOPIC",
+    "INPUT_TOPICS",
+    "OUTPUT_TOPICS",
+    "POWER_TOPIC",
+    "SPEED_TOPIC",
+    "BagMessage",
+    "BagWriter",
+    "bag_name",
+    "bag_topics",
+    "file_size",
+    "iter_bag",
+    "make_header",
+    "mcap_files",
+    "msg_class",
+    "stamp_ns",
+    "typestore",
+]

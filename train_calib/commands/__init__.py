@@ -1,0 +1,1 @@
+"""Subcommands of ``train-calib``, one module each (see ``train_calib.cli``)."""

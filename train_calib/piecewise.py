@@ -1,0 +1,50 @@
+"""Piecewise-constant functions of the track position and their means over the train length."""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+class PiecewiseConstant:
+    """f(s) = values[i] for breaks[i] <= s < breaks[i+1]; constant beyond both ends.
+
+    ``mean_over(a, b)`` integrates exactly through a cumulative integral that is piecewise
+    linear, so averaging over a train length costs two ``np.interp`` calls for any array of
+    positions.
+    """
+
+    def __init__(self, breaks_m, values) -> None:
+        breaks = np.asarray(breaks_m, dtype=float)
+        vals = np.asarray(values, dtype=float)
+        if breaks.ndim != 1 or breaks.shape != vals.shape or breaks.size == 0:
+            raise ValueError("breaks and values must be 1-D arrays of the same non-zero length")
+        if np.any(np.diff(breaks) <= 0):
+            raise ValueError("breaks must be strictly increasing")
+        self.breaks = breaks
+        self.values = vals
+        self._cumulative = np.concatenate(([0.0], np.cumsum(vals[:-1] * np.diff(breaks))))
+
+    def __call__(self, s_m) -> np.ndarray:
+        s = np.asarray(s_m, dtype=float)
+        idx = np.clip(np.searchsorted(self.breaks, s, side="right") - 1, 0, self.breaks.size - 1)
+        return self.values[idx]
+
+    def integral(self, s_m) -> np.ndarray:
+        """Integral of f from breaks[0] to s (negative below breaks[0])."""
+        s = np.asarray(s_m, dtype=float)
+        idx = np.clip(np.searchsorted(self.breaks, s, side="right") - 1, 0, self.breaks.size - 1)
+        return self._cumulative[idx] + self.values[idx] * (s - self.breaks[idx])
+
+    def mean_over(self, start_m, end_m) -> np.ndarray:
+        """Mean of f over [start, end] (f(end) where the interval is empty)."""
+        a = np.asarray(start_m, dtype=float)
+        b = np.asarray(end_m, dtype=float)
+        width = b - a
+        with np.errstate(invalid="ignore", divide="ignore"):
+            mean = (self.integral(b) - self.integral(a)) / width
+        return np.where(width > 1e-9, mean, self(b))
+
+    def next_change(self, s_m: float) -> float:
+        """The first break strictly after s (inf when none)."""
+        i = int(np.searchsorted(self.breaks, s_m, side="right"))
+        return float(self.breaks[i]) if i < self.breaks.size else float("inf")
