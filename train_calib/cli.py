@@ -23,14 +23,22 @@ def _command_modules():
             yield importlib.import_module(f"{commands.__name__}.{info.name}")
 
 
+class OneLineErrorParser(argparse.ArgumentParser):
+    """Usage errors as one line (``train-calib <command>: error: ...``) and exit status 2."""
+
+    def error(self, message: str):  # type: ignore[override]
+        print(f"{self.prog}: error: {message}", file=sys.stderr)
+        raise SystemExit(2)
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = OneLineErrorParser(
         prog="train-calib",
         description="Real-time train motion model calibration: simulate, replay bags through the ROS 2 "
         "node graph, calibrate from traction power or track occupation data.",
     )
     parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
-    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True, parser_class=OneLineErrorParser)
     for module in _command_modules():
         cmd = sub.add_parser(module.NAME, help=module.HELP, description=module.__doc__)
         module.add_arguments(cmd)

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import argparse
 import shlex
-import sys
 from datetime import datetime, timezone
 from pathlib import Path
 
@@ -80,12 +79,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--name", help="bag name prefix (default <track>_<period>s); bags are <prefix>_<nn>")
     parser.add_argument("--dense", action="store_true", help="also write <name>.dense.csv (truth every 0.5 s)")
     parser.add_argument("--quiet", action="store_true", help="print nothing but errors")
-
-    def one_line_error(message: str) -> None:
-        print(f"train-calib {NAME}: error: {message}", file=sys.stderr)
-        sys.exit(2)
-
-    parser.error = one_line_error  # type: ignore[method-assign]
 
 
 def _check(condition: bool, option: str, problem: str) -> None:
