@@ -1,0 +1,299 @@
+"""Configuration of the estimator core: UKF, regime recognition and feature extraction (frozen ParamSets).
+
+``UKFConfig()`` is Cunillera et al. (2022), Table 1, with every engineering option off where the paper
+is silent (computed effort on every step, Euler process, no process noise). ``UKFConfig.converging()``
+is the measured alternative that converges from a wrong prior (docs/estimator.md, "Presets").
+Units are SI; speeds in m/s (the paper's km/h values are converted in the defaults).
+"""
+
+from __future__ import annotations
+
+import itertools
+from dataclasses import dataclass
+from typing import Any
+
+from ..errors import ConfigError
+from ..params import ParamSet, param
+from ..physics import KMH
+
+EFFORT_MODES = ("computed", "exploit_known")
+INTEGRATIONS = ("euler", "midpoint")
+NONNEGATIVE_RULES = ("project", "clip")
+CARRY_OVER = ("reset", "keep")
+PRESETS = ("paper", "converging")
+
+
+@dataclass(frozen=True)
+class UKFConfig(ParamSet):
+    """Resistance UKF over x = (s, v, r0, r1, r2); defaults are the paper's Table 1."""
+
+    # -- Table 1 -------------------------------------------------------------------------------
+    alpha: float = param(0.001, "van der Merwe sigma-point spread alpha (Table 1)", low=0.0, high=1.0, low_open=True)
+    beta: float = param(2.0, "van der Merwe prior-knowledge parameter beta (Table 1)", low=0.0)
+    kappa: float = param(-2.0, "van der Merwe secondary scaling kappa (Table 1); L + kappa must be > 0", low=-4.9)
+    init_std_s: float = param(1.0, "initial standard deviation of s (Table 1)", unit="m", low=0.0, low_open=True)
+    init_std_v: float = param(
+        0.0018 * KMH, "initial standard deviation of v (Table 1: 0.0018 km/h)", unit="m/s", low=0.0, low_open=True
+    )
+    init_std_r0: float = param(1e-6, "initial standard deviation of r0 (Table 1)", unit="N/kg", low=0.0, low_open=True)
+    init_std_r1: float = param(
+        1e-8, "initial standard deviation of r1 (Table 1)", unit="N/(kg m/s)", low=0.0, low_open=True
+    )
+    init_std_r2: float = param(
+        1e-9, "initial standard deviation of r2 (Table 1)", unit="N/(kg (m/s)^2)", low=0.0, low_open=True
+    )
+    init_std_r_relative: float = param(
+        0.0,
+        "initial std of each r_j is at least this fraction of its prior value (0: the absolute values only)",
+        low=0.0,
+        high=10.0,
+    )
+    meas_std_s: float = param(4.0, "position measurement noise std (paper: 4 m)", unit="m", low=0.0, low_open=True)
+    meas_std_v: float = param(
+        1.0 * KMH, "speed measurement noise std (paper: 1 km/h)", unit="m/s", low=0.0, low_open=True
+    )
+    use_measurement_variance: bool = param(
+        False, "take R from each measurement's s_variance / v_variance instead of meas_std_s / meas_std_v"
+    )
+    # -- process ---------------------------------------------------------------------------------
+    integration: str = param(
+        "euler",
+        "euler: a at the start of the step (paper eq. 4-5); midpoint: a at the predicted mid-step speed (RK2)",
+        choices=INTEGRATIONS,
+    )
+    accel_noise_std: float = param(
+        0.0,
+        "std of a piecewise-constant acceleration disturbance per step (Q = q b b^T, b = (dt^2/2, dt)); paper: 0",
+        unit="m/s^2",
+        low=0.0,
+    )
+    noise_r0: float = param(0.0, "random-walk std of r0 per sqrt(s); paper: 0 (harmful)", unit="N/kg/sqrt(s)", low=0.0)
+    noise_r1: float = param(0.0, "random-walk std of r1 per sqrt(s)", unit="N/(kg m/s)/sqrt(s)", low=0.0)
+    noise_r2: float = param(0.0, "random-walk std of r2 per sqrt(s)", unit="N/(kg (m/s)^2)/sqrt(s)", low=0.0)
+    update_uses_process_noise: bool = param(
+        True,
+        "true: the gain sees Q (sigma points redrawn after Q is added); false: the propagated sigma points as in "
+        "Cunillera eq. 12-15 and filterpy (identical when Q = 0)",
+    )
+    # -- applied effort ----------------------------------------------------------------------------
+    effort_mode: str = param(
+        "computed",
+        "computed: u from consecutive speeds with the latest estimate on every step (paper); exploit_known: u = 0 "
+        "on confirmed coasting steps and u from measured traction power where valid, computed otherwise",
+        choices=EFFORT_MODES,
+    )
+    use_power: bool = param(
+        True, "exploit_known: use traction power (power_valid) for the effort: f_t = eta (P - P_aux) / (v gamma m)"
+    )
+    decouple_unknown_effort: bool = param(
+        False,
+        "on computed-effort steps the resistance sigma points do not enter the process (the speed change was used to "
+        "compute u, so it says nothing about r): r is then only learnt from known-effort steps",
+    )
+    coast_effort_tolerance: float = param(
+        0.025, "|computed effort| within this is taken as coasting (u = 0 known)", unit="N/kg", low=0.0
+    )
+    coast_confirm_time: float = param(
+        20.0,
+        "u = 0 is taken as known when both the published effort (accel_window fit) and the effort from a linear fit "
+        "of the speed over this (covered) window lie in the coasting band",
+        unit="s",
+        low=0.0,
+    )
+    coast_max_residual: float = param(
+        0.3,
+        "known coasting also needs the measured speeds of the confirmation window to lie on a straight line within "
+        "this standard deviation (no traction or brake change inside the window)",
+        unit="m/s",
+        low=0.0,
+        low_open=True,
+    )
+    coast_reference: str = param(
+        "prior",
+        "resistance used to compute the effort for the known-coasting decision: prior (fixed: no feedback from a "
+        "drifting estimate into the decision) or estimate (latest r)",
+        choices=("prior", "estimate"),
+    )
+    coast_vs_hold: bool = param(
+        True,
+        "known coasting also needs the computed effort nearer 0 (coasting) than r + g (holding the speed, a = 0): the "
+        "band is cut at (r + g) / 2 on that side; a low-speed hold has an effort inside the coasting band",
+    )
+    known_effort_gate: float = param(
+        0.999,
+        "a known-effort step whose speed innovation exceeds this chi-square quantile (1 dof) is redone with the "
+        "computed effort (1: no gate)",
+        low=0.5,
+        high=1.0,
+    )
+    known_effort_min_speed: float = param(
+        3.0, "known effort is used only when both ends of the step are faster than this", unit="m/s", low=0.0
+    )
+    power_threshold: float = param(
+        0.005, "wheel power per effective mass below this counts as no traction", unit="W/kg", low=0.0
+    )
+    accel_window: float = param(
+        10.0,
+        "the published acceleration is the slope of a causal linear fit of the measured speed over this window "
+        "(always at least the last two samples: at 10 s sampling the paper's two-point difference)",
+        unit="s",
+        low=0.0,
+        high=600.0,
+    )
+    # -- safeguards and health -----------------------------------------------------------------
+    nonnegative: str = param(
+        "project",
+        "keep v, r0, r1, r2 >= 0: project (covariance-weighted projection onto the active bounds, then clip) or clip",
+        choices=NONNEGATIVE_RULES,
+    )
+    repair_min_eigenvalue: float = param(
+        1e-9,
+        "repair of a non-positive-definite covariance: floor on the eigenvalues of its correlation matrix",
+        low=0.0,
+        low_open=True,
+        high=0.1,
+    )
+    nis_window: int = param(20, "steps in the normalised-innovation-squared window for health", low=1, high=100000)
+    nis_quantile: float = param(
+        0.999,
+        "DEGRADED when the NIS summed over the window exceeds this chi-square quantile",
+        low=0.5,
+        high=1.0,
+        low_open=True,
+    )
+    max_dt: float = param(
+        120.0,
+        "a longer gap re-initialises s and v from the measurement (keeps r); health RESET",
+        unit="s",
+        low=0.0,
+        low_open=True,
+    )
+    carry_over: str = param(
+        "reset",
+        "at a new run_id: reset (r and P from the prior, paper) or keep (r and P_rr carried over)",
+        choices=CARRY_OVER,
+    )
+    carry_over_inflation: float = param(1.0, "keep: the carried r covariance is multiplied by this", low=1.0, high=1e6)
+
+    STATE_SIZE = 5
+
+    def validate(self, source: str = "parameters", prefix: str = "") -> None:
+        if self.alpha**2 * (self.STATE_SIZE + self.kappa) <= 0.0:
+            raise ConfigError(source, f"{prefix}kappa", f"L + kappa must be > 0 (L = 5), found kappa {self.kappa:g}")
+
+    @property
+    def lam(self) -> float:
+        """van der Merwe lambda = alpha^2 (L + kappa) - L."""
+        return self.alpha**2 * (self.STATE_SIZE + self.kappa) - self.STATE_SIZE
+
+    @classmethod
+    def paper(cls, **overrides: Any) -> UKFConfig:
+        """Cunillera et al. (2022) Table 1 with computed effort (the defaults)."""
+        return cls().replace(**overrides) if overrides else cls()
+
+    @classmethod
+    def converging(cls, **overrides: Any) -> UKFConfig:
+        """Measured alternative that converges from a +-20 % wrong prior (docs/estimator.md, Presets).
+
+        Prior std 30 % of each manufacturer value; u = 0 taken as known on coasting steps confirmed over
+        40 s and u from traction power where measured; r a consider parameter on computed-effort steps;
+        midpoint process; an acceleration disturbance of 0.01 m/s^2; well-conditioned sigma points
+        (alpha 0.5, kappa 0); initial std of v 0.3 m/s and of s 4 m (the measurement's).
+        """
+        base = cls(
+            alpha=0.5,
+            beta=2.0,
+            kappa=0.0,
+            init_std_v=0.3,
+            init_std_s=4.0,
+            init_std_r_relative=0.3,
+            integration="midpoint",
+            accel_noise_std=0.01,
+            effort_mode="exploit_known",
+            decouple_unknown_effort=True,
+            coast_confirm_time=40.0,
+        )
+        return base.replace(**overrides) if overrides else base
+
+    @classmethod
+    def preset(cls, name: str, **overrides: Any) -> UKFConfig:
+        """A named preset ('paper' or 'converging') with optional overrides."""
+        if name not in PRESETS:
+            raise ConfigError("UKFConfig", "preset", f"{name!r} is not one of {', '.join(PRESETS)}")
+        return getattr(cls, name)(**overrides)
+
+
+@dataclass(frozen=True)
+class RegimeConfig(ParamSet):
+    """Driving regime recognition (Cunillera et al. 2022, Section 3.2)."""
+
+    effort_tolerance: float = param(
+        0.025, "|effort| within this is coasting; above traction, below braking", unit="N/kg", low=0.0
+    )
+    cruise_tolerance: float = param(
+        0.06, "traction or braking with |acceleration| within this is cruising", unit="m/s^2", low=0.0
+    )
+    standstill_speed: float = param(
+        0.3, "when the speed is given: slower samples are UNKNOWN (standing; not a regime)", unit="m/s", low=0.0
+    )
+    hold_detection: bool = param(
+        False,
+        "a sample in the coasting band whose acceleration is nearer 0 than the coasting deceleration (|a| < |effort|, "
+        "effort - a = r + g) is CRUISING: a speed hold whose effort r + g lies inside the band (low speed)",
+    )
+
+
+@dataclass(frozen=True)
+class FeatureConfig(ParamSet):
+    """Feature extraction (Cunillera et al. 2022, Sections 3.3, 4.3-4.4); windows and steps per network."""
+
+    max_effort_window_low: float = param(10.0 * KMH, "max tractive effort fit window, low end", unit="m/s", low=0.0)
+    max_effort_window_high: float = param(30.0 * KMH, "max tractive effort fit window, high end", unit="m/s", low=0.0)
+    max_power_window_low: float = param(50.0 * KMH, "max tractive power window, low end", unit="m/s", low=0.0)
+    max_power_window_high: float = param(130.0 * KMH, "max tractive power window, high end", unit="m/s", low=0.0)
+    brake_step_edges: tuple[float, ...] = param(
+        (0.0, 40.0 * KMH, 60.0 * KMH, 80.0 * KMH, 130.0 * KMH),
+        "lower bounds of the brake-rate speed steps, ascending; the last step is open above (ATB-EG: 0, 40, 60, 80, "
+        "130 km/h)",
+        unit="m/s",
+        low=0.0,
+    )
+    standstill_speed: float = param(
+        0.3, "steps whose mean speed is below this are standing time (regime UNKNOWN, not a phase)", unit="m/s", low=0.0
+    )
+    brake_window: float = param(
+        10.0,
+        "a braking sample counts for the brake rates only when braking has lasted this long before it and its speed "
+        "over this window stayed in one step (the estimator's accel_window: the acceleration is a window average)",
+        unit="s",
+        low=0.0,
+    )
+    cruise_min_duration: float = param(
+        30.0, "cruising phases shorter than this are not listed in cruise_speeds", unit="s", low=0.0
+    )
+    phase_merge_gap: float = param(
+        20.0,
+        "final coast/brake: an interruption by another regime no longer than this is merged into the phase",
+        unit="s",
+        low=0.0,
+    )
+    final_coast_min_duration: float = param(
+        30.0,
+        "final coast: the last coasting phase (after merging) lasting at least this long; shorter ones are transition "
+        "or noise fragments",
+        unit="s",
+        low=0.0,
+    )
+    final_brake_min_duration: float = param(
+        0.0, "final brake: the last braking phase (after merging) lasting at least this long", unit="s", low=0.0
+    )
+    histogram_bins: int = param(10, "bins of the fleet histograms", low=1, high=1000)
+
+    def validate(self, source: str = "parameters", prefix: str = "") -> None:
+        for name in ("max_effort_window", "max_power_window"):
+            low, high = getattr(self, f"{name}_low"), getattr(self, f"{name}_high")
+            if not low < high:
+                raise ConfigError(source, f"{prefix}{name}_high", f"must be greater than {name}_low ({low:g} m/s)")
+        edges = self.brake_step_edges
+        if len(edges) == 0 or any(b <= a for a, b in itertools.pairwise(edges)):
+            raise ConfigError(source, f"{prefix}brake_step_edges", "expected a non-empty strictly ascending list")

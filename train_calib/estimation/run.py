@@ -1,0 +1,119 @@
+"""Whole-run API: the filter over a MeasurementSeries, and the offline unscented RTS smoother."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..measurement import MeasurementSeries
+from ..train import Davis, TrainSpec
+from .config import UKFConfig
+from .covariance import UPPER_INDEX, cholesky, unpack
+from .records import HEALTH_RESET, EstimateSeries
+from .ukf import ResistanceEstimator
+
+
+def estimate_run(
+    series: MeasurementSeries,
+    train: TrainSpec,
+    config: UKFConfig | None = None,
+    initial: Davis | None = None,
+    estimator: ResistanceEstimator | None = None,
+) -> EstimateSeries:
+    """Run the UKF over every sample; identical numbers to ``ResistanceEstimator.update`` per sample.
+
+    ``estimator`` continues an existing filter (its config and state); otherwise a new one is made.
+    Several run_ids in the series are handled as the node does (``carry_over``).
+    """
+    est = estimator if estimator is not None else ResistanceEstimator(train, config, initial)
+    n = len(series)
+    out = EstimateSeries.empty(n)
+    packed = np.empty((n, 15))
+    cols = (
+        series.stamp_ns.tolist(),
+        series.run_id.tolist(),
+        series.s.tolist(),
+        series.v.tolist(),
+        series.track_force.tolist(),
+        series.s_measured.tolist(),
+        series.s_variance.tolist(),
+        series.v_variance.tolist(),
+        series.power_valid.tolist(),
+        series.power_consumed.tolist(),
+        series.power_regenerated.tolist(),
+    )
+    rows = [None] * n
+    process = est._process
+    for i, args in enumerate(zip(*cols)):
+        rows[i] = process(*args)
+        packed[i] = est._P
+    if n:
+        table = np.array(rows, dtype=float)
+        out.stamp_ns[:] = series.stamp_ns
+        out.run_id[:] = series.run_id
+        out.s[:], out.v[:], out.r0[:], out.r1[:], out.r2[:] = table[:, 0:5].T
+        out.effort[:], out.acceleration[:], out.resistance[:], out.track_force[:], out.nis[:] = table[:, 5:10].T
+        out.effort_known[:] = table[:, 10] != 0.0
+        out.health[:] = table[:, 11]
+        out.dt[:], out.input_effort[:] = table[:, 12], table[:, 13]
+        out.decoupled[:] = table[:, 14] != 0.0
+        out.covariance[:] = packed[:, UPPER_INDEX]
+    return out
+
+
+def smooth_run(
+    series: MeasurementSeries,
+    train: TrainSpec,
+    config: UKFConfig | None = None,
+    initial: Davis | None = None,
+    estimates: EstimateSeries | None = None,
+) -> EstimateSeries:
+    """Offline unscented Rauch-Tung-Striebel smoother (Sarkka 2008) over the filtered run.
+
+    The backward pass reuses each forward step's input (effort u, track force g, dt, decoupling) and
+    the same closed-form unscented transform; the chain is cut at run starts, gaps and resets. Returns
+    a copy of ``estimates`` (computed when not given) with s, v, r0, r1, r2, covariance and resistance
+    smoothed (r clipped at 0); effort, acceleration, nis, health and the rest stay the forward values.
+    """
+    est = ResistanceEstimator(train, config, initial)
+    fwd = estimates if estimates is not None else estimate_run(series, train, config, initial)
+    out = fwd.select(np.arange(len(fwd)))
+    n = len(fwd)
+    if n < 2:
+        return out
+    xs = fwd.state.copy()
+    ps = fwd.covariance.copy()
+    iu = np.triu_indices(5)
+    for k in range(n - 2, -1, -1):
+        dt = float(fwd.dt[k + 1])
+        if dt <= 0.0 or fwd.run_id[k + 1] != fwd.run_id[k] or fwd.health[k + 1] == HEALTH_RESET:
+            continue
+        xk = fwd.state[k]
+        pk = fwd.covariance[k]
+        est._x = [float(v) for v in xk]
+        est._P = tuple(float(v) for v in pk[iu])
+        chol = cholesky(est._P)
+        if chol is None:
+            continue
+        est._L = chol
+        est._predict(dt, float(fwd.input_effort[k + 1]), float(fwd.track_force[k]), bool(fwd.decoupled[k + 1]))
+        x_bar = np.array(est._x)
+        p_bar = unpack(est._P)
+        m = np.array(est._m)
+        b = np.array([0.5 * dt * dt, dt, 0.0, 0.0, 0.0])
+        cross = pk.copy()
+        cross[:, 0] += dt * pk[:, 1]  # P A^T
+        cross += np.outer(m, b)
+        try:
+            gain = np.linalg.solve(p_bar.T, cross.T).T  # C P_bar^-1
+        except np.linalg.LinAlgError:
+            continue
+        xs[k] = xk + gain @ (xs[k + 1] - x_bar)
+        pk_s = pk + gain @ (ps[k + 1] - p_bar) @ gain.T
+        ps[k] = 0.5 * (pk_s + pk_s.T)
+    xs[:, 1:] = np.maximum(xs[:, 1:], 0.0)
+    out.s[:], out.v[:], out.r0[:], out.r1[:], out.r2[:] = xs.T
+    out.covariance[:] = ps
+    out.resistance[:] = out.r0 + (out.r1 + out.r2 * out.v) * out.v
+    if not np.all(np.isfinite(xs)):
+        raise FloatingPointError("smoother produced non-finite states")
+    return out

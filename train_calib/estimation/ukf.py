@@ -1,0 +1,637 @@
+"""Online UKF estimate of the Davis running resistance (Cunillera et al. 2022, Section 3.1).
+
+State x = (s, v, r0, r1, r2); process (eq. 4-5) over the step dt between two measurements:
+
+    a  = u - g - r0 - r1 v - r2 v^2       (euler; midpoint: a at v + dt/2 * a)
+    s' = s + dt v + dt^2/2 a,  v' = v + dt a,  r' = r
+
+with u the applied effort and g the track force of the measurement at the start of the step; the
+measurement z = (s, v) (or v alone when s was not measured) is linear.
+
+The unscented transform is done in closed form. Every sigma point is x + d with d = 0 or +-c L_j
+(L the Cholesky factor of P, c^2 = L + lambda), and the process is A x + b a(x) with A linear,
+b = (dt^2/2, dt, 0, 0, 0) and a(x) a scalar; with o_j, e_j the odd and even parts of
+a(x +- c L_j) - a(x):
+
+    a_bar = a(x) + sum_j e_j / c^2
+    m     = sum_j L_j o_j / c                      (cross-covariance of x and a)
+    q     = (beta - alpha^2) E^2 + sum_j (o_j^2 + e_j^2) / c^2,  E = sum_j e_j / c^2
+    x_bar = A x + b a_bar,   P_bar = A P A^T + A m b^T + b m^T A^T + q b b^T + Q
+
+which is algebraically the weighted sums of eq. 10-11 (van der Merwe weights, eq. 9) without
+forming the 11 sigma points or their huge cancelling weights (w0 = -1.7e6 with Table 1), and the
+update (eq. 13-18) with a linear h reduces to a 2x2 Kalman update. A test checks the result
+against filterpy's UnscentedKalmanFilter + MerweScaledSigmaPoints.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from scipy.stats import chi2
+
+from ..measurement import Measurement
+from ..train import Davis, TrainSpec
+from .config import UKFConfig
+from .covariance import cholesky, project_nonnegative, repair, unpack
+from .effort import PowerEffort, SpeedSlope
+from .records import HEALTH_DEGRADED, HEALTH_OK, HEALTH_REPAIRED, HEALTH_RESET, EstimateSample
+
+_NONNEG = (1, 2, 3, 4)  # v, r0, r1, r2
+
+
+class ResistanceEstimator:
+    """Per-measurement UKF of (s, v, r0, r1, r2) with effort computation, safeguards and health.
+
+    ``update(m)`` once per measurement (variable dt from the stamps); a new ``run_id`` starts a new
+    run (``carry_over``). Never returns NaN or a negative r. Counters for diagnostics: ``counters``.
+    """
+
+    def __init__(self, train: TrainSpec, config: UKFConfig | None = None, initial: Davis | None = None) -> None:
+        self.train = train
+        self.config = cfg = config if config is not None else UKFConfig()
+        self.prior = initial if initial is not None else train.davis
+        if min(self.prior.as_tuple()) < 0.0 or not all(math.isfinite(x) for x in self.prior.as_tuple()):
+            raise ValueError(f"initial resistance must be finite and >= 0, found {self.prior}")
+        n = 5
+        lam = cfg.lam
+        self._c2 = n + lam
+        self._c = math.sqrt(self._c2)
+        self._beta_alpha = cfg.beta - cfg.alpha**2
+        self._midpoint = cfg.integration == "midpoint"
+        self._exploit = cfg.effort_mode == "exploit_known"
+        self._decouple = bool(cfg.decouple_unknown_effort)
+        self._use_q_gain = bool(cfg.update_uses_process_noise)
+        self._qa = cfg.accel_noise_std**2
+        self._qr = (cfg.noise_r0**2, cfg.noise_r1**2, cfg.noise_r2**2)
+        self._rs = cfg.meas_std_s**2
+        self._rv = cfg.meas_std_v**2
+        self._power = PowerEffort(train)
+        self._slope = SpeedSlope(cfg.accel_window)
+        self._coast_prior = cfg.coast_reference == "prior"
+        self._prior_r = self.prior.as_tuple()
+        self._coast_slope = SpeedSlope(cfg.coast_confirm_time)
+        nw = cfg.nis_window
+        dofs = np.arange(0, 2 * nw + 1)
+        self._nis_limit = [math.inf] + [float(x) for x in chi2.ppf(cfg.nis_quantile, dofs[1:])]
+        self._gate = float(chi2.ppf(cfg.known_effort_gate, 1)) if cfg.known_effort_gate < 1.0 else math.inf
+        self.counters: dict[str, int] = {
+            "updates": 0,
+            "runs": 0,
+            "repairs": 0,
+            "resets": 0,
+            "gaps": 0,
+            "degraded": 0,
+            "projections": 0,
+            "known_effort_coast": 0,
+            "known_effort_rejected": 0,
+            "known_effort_power": 0,
+            "known_effort_power_coast": 0,
+            "nonpositive_dt": 0,
+            "invalid_input": 0,
+            "position_missing": 0,
+        }
+        self._x: list[float] | None = None
+        self._P: tuple[float, ...] = ()
+        self._L: tuple[float, ...] = ()
+        self._keep_next = False
+        self._run_id: int | None = None
+        self._q_sv = (0.0, 0.0, 0.0)
+        self._m = (0.0, 0.0, 0.0, 0.0, 0.0)
+        self._reset_run_state()
+
+    # -- public API -----------------------------------------------------------------------------
+    @property
+    def state(self) -> np.ndarray:
+        """Current (s, v, r0, r1, r2); NaN before the first measurement."""
+        return np.array(self._x, dtype=float) if self._x is not None else np.full(5, np.nan)
+
+    @property
+    def covariance(self) -> np.ndarray:
+        """Current 5x5 covariance over (s, v, r0, r1, r2); NaN before the first measurement."""
+        return unpack(self._P) if self._x is not None else np.full((5, 5), np.nan)
+
+    @property
+    def davis(self) -> Davis:
+        x = self._x if self._x is not None else [0.0, 0.0, *self.prior.as_tuple()]
+        return Davis(x[2], x[3], x[4])
+
+    def reset(self, keep_resistance: bool = False) -> None:
+        """Forget the run: the next measurement re-initialises s and v; r (and its covariance) are kept
+        when ``keep_resistance`` (times ``carry_over_inflation``), else taken from the prior."""
+        self._keep_next = bool(keep_resistance) and self._x is not None
+        if not self._keep_next:
+            self._x = None
+        self._run_id = None
+        self._reset_run_state()
+
+    def update(self, m: Measurement) -> EstimateSample:
+        """Process one measurement; returns the estimate after it."""
+        out = self._process(
+            int(m.stamp_ns),
+            int(m.run_id),
+            float(m.s),
+            float(m.v),
+            float(m.track_force),
+            bool(m.s_measured),
+            float(m.s_variance),
+            float(m.v_variance),
+            bool(m.power_valid),
+            float(m.power_consumed),
+            float(m.power_regenerated),
+        )
+        s, v, r0, r1, r2, effort, accel, resistance, g, nis, known, health, dt, u_in, _ = out
+        return EstimateSample(
+            stamp_ns=int(m.stamp_ns),
+            run_id=int(m.run_id),
+            s=s,
+            v=v,
+            r0=r0,
+            r1=r1,
+            r2=r2,
+            covariance=unpack(self._P),
+            effort=effort,
+            acceleration=accel,
+            resistance=resistance,
+            track_force=g,
+            nis=nis,
+            effort_known=known,
+            health=health,
+            dt=dt,
+            input_effort=u_in,
+        )
+
+    # -- internals ------------------------------------------------------------------------------
+    def _reset_run_state(self) -> None:
+        self._slope.reset()
+        self._last_stamp = 0
+        self._zv_prev = 0.0
+        self._g_prev = 0.0
+        self._pw_prev = (False, 0.0, 0.0)
+        self._coast_slope.reset()
+        self._last_effort = 0.0
+        self._last_accel = 0.0
+        self._last_input = 0.0
+        self._nis_ring: list[tuple[float, int]] = []
+        self._nis_sum = 0.0
+        self._nis_dof = 0
+
+    def _initial_cov(self, r: tuple[float, float, float]) -> list[float]:
+        cfg = self.config
+        rel = cfg.init_std_r_relative
+        s0 = max(cfg.init_std_r0, rel * abs(r[0]))
+        s1 = max(cfg.init_std_r1, rel * abs(r[1]))
+        s2 = max(cfg.init_std_r2, rel * abs(r[2]))
+        p = [0.0] * 15
+        p[0] = cfg.init_std_s**2
+        p[5] = cfg.init_std_v**2
+        p[9], p[12], p[14] = s0 * s0, s1 * s1, s2 * s2
+        return p
+
+    def _initialise(self, zs: float, zv: float, keep: bool, inflation: float = 1.0) -> None:
+        """(Re)start at the measurement; keep: r and its covariance block (times inflation) from the current state."""
+        if keep and self._x is not None and all(math.isfinite(xi) and xi >= 0.0 for xi in self._x[2:]):
+            r = (self._x[2], self._x[3], self._x[4])
+            old = self._P
+            p = self._initial_cov(r)
+            for idx in (9, 10, 11, 12, 13, 14):
+                p[idx] = old[idx] * inflation
+        else:
+            r = self.prior.as_tuple()
+            p = self._initial_cov(r)
+        self._x = [zs, max(zv, 0.0), r[0], r[1], r[2]]
+        if self._set_cov(tuple(p)) != HEALTH_OK:
+            self._x[2:] = list(self.prior.as_tuple())
+            self._set_cov(tuple(self._initial_cov(self.prior.as_tuple())))
+
+    def _set_cov(self, p: tuple[float, ...]) -> int:
+        """Store P and its factor; repair when not positive definite. Returns a health flag."""
+        chol = cholesky(p)
+        if chol is not None:
+            self._P, self._L = p, chol
+            return HEALTH_OK
+        fixed = repair(p, self.config.repair_min_eigenvalue)
+        chol = cholesky(fixed) if fixed is not None else None
+        if chol is None:
+            return HEALTH_RESET
+        self.counters["repairs"] += 1
+        self._P, self._L = fixed, chol
+        return HEALTH_REPAIRED
+
+    def _process(
+        self,
+        stamp_ns: int,
+        run_id: int,
+        zs: float,
+        zv: float,
+        g: float,
+        s_measured: bool,
+        s_var: float,
+        v_var: float,
+        power_valid: bool,
+        power_consumed: float,
+        power_regen: float,
+    ) -> tuple:
+        cfg = self.config
+        self.counters["updates"] += 1
+        health = HEALTH_OK
+        if not (math.isfinite(zv) and zv >= 0.0 and math.isfinite(g)) or (
+            self._x is not None and run_id == self._run_id and stamp_ns < self._last_stamp
+        ):
+            return self._rejected(stamp_ns)
+        if not math.isfinite(zs):
+            s_measured = False
+            zs = self._x[0] if self._x is not None and run_id == self._run_id else 0.0
+        # ---- run start / gap --------------------------------------------------------------------
+        if self._x is None or run_id != self._run_id:
+            keep = self._x is not None and (self._keep_next or cfg.carry_over == "keep")
+            self._reset_run_state()
+            self._initialise(zs, zv, keep, cfg.carry_over_inflation)
+            self._keep_next = False
+            self._run_id = run_id
+            self.counters["runs"] += 1
+            return self._first_sample(stamp_ns, zv, g, power_valid, power_consumed, power_regen, health)
+        dt = (stamp_ns - self._last_stamp) * 1e-9
+        if dt > cfg.max_dt:
+            self.counters["gaps"] += 1
+            self.counters["resets"] += 1
+            self._reset_run_state()
+            self._initialise(zs, zv, True)
+            return self._first_sample(stamp_ns, zv, g, power_valid, power_consumed, power_regen, HEALTH_RESET)
+
+        x = self._x
+        _, v, r0, r1, r2 = x
+        zv_prev = self._zv_prev
+        g_prev = self._g_prev
+        t = stamp_ns * 1e-9
+        a_obs = self._slope.push(t, zv)
+        a_coast = self._coast_slope.slope if self._exploit else 0.0  # up to the previous sample (no selection on z_k)
+        known = False
+        decoupled = False
+        if dt > 0.0:
+            # ---- applied effort ---------------------------------------------------------------
+            dz = zv - zv_prev
+            a_two = dz / dt
+            v_ref = v + 0.5 * dz if self._midpoint else v
+            r_ref = r0 + (r1 + r2 * v_ref) * v_ref
+            effort = a_obs + r_ref + g_prev
+            u = a_two + r_ref + g_prev
+            if self._coast_prior:
+                p0, p1, p2 = self._prior_r
+                r_dec = p0 + (p1 + p2 * v_ref) * v_ref
+            else:
+                r_dec = r_ref
+            # coasting band [lo, hi]; against a hold (u = r + g), only the side towards r + g is narrowed
+            hi = cfg.coast_effort_tolerance
+            lo = -hi
+            if cfg.coast_vs_hold:
+                hold = r_dec + g_prev
+                if hold > 0.0:
+                    hi = min(hi, 0.5 * hold)
+                else:
+                    lo = max(lo, 0.5 * hold)
+            known_u = None
+            if self._exploit and zv_prev >= cfg.known_effort_min_speed and zv >= cfg.known_effort_min_speed:
+                traction = None
+                pv0, pc0, pr0 = self._pw_prev
+                if cfg.use_power and pv0 and power_valid:
+                    if pr0 > 0.0 or power_regen > 0.0:
+                        traction = False  # electric braking: f_b unknown (blended)
+                    else:
+                        w0 = self._power.wheel_power(pc0)
+                        w1 = self._power.wheel_power(power_consumed)
+                        if w0 > cfg.power_threshold and w1 > cfg.power_threshold:
+                            known_u = 0.5 * (w0 / zv_prev + w1 / zv)
+                            kind = "known_effort_power"
+                        elif w0 > cfg.power_threshold or w1 > cfg.power_threshold:
+                            traction = False  # traction switched within the step
+                        elif effort > -4.0 * cfg.coast_effort_tolerance:
+                            known_u = 0.0  # no traction, no electric brake, not clearly braking: coasting
+                            kind = "known_effort_power_coast"
+                if (
+                    known_u is None
+                    and traction is None
+                    and lo <= a_coast + r_dec + g_prev <= hi
+                    and self._coast_slope.span >= 0.98 * cfg.coast_confirm_time - 1e-6
+                    and self._coast_slope.residual_std() <= cfg.coast_max_residual
+                ):
+                    known_u = 0.0
+                    kind = "known_effort_coast"
+            if known_u is not None:
+                saved = (list(x), self._P, self._L, self._m, self._q_sv)
+                self._predict(dt, known_u, g_prev, False)
+                nu = zv - x[1]
+                if nu * nu <= self._gate * (self._P[5] + (v_var if cfg.use_measurement_variance else self._rv)):
+                    known = True
+                    u = effort = known_u
+                    self.counters[kind] += 1
+                else:
+                    self.counters["known_effort_rejected"] += 1
+                    x[:], self._P, self._L, self._m, self._q_sv = saved
+            decoupled = self._decouple and not known
+            if not known:
+                self._predict(dt, u, g_prev, decoupled)
+            self._last_effort, self._last_accel, self._last_input = effort, a_obs, u
+        else:
+            self.counters["nonpositive_dt"] += 1
+            dt = 0.0
+            effort, u = self._last_effort, self._last_input
+            a_obs = self._last_accel
+        if self._exploit:
+            self._coast_slope.push(t, zv)
+        # ---- measurement update ---------------------------------------------------------------------
+        if cfg.use_measurement_variance:
+            rs, rv = s_var, v_var
+        else:
+            rs, rv = self._rs, self._rv
+        if not s_measured:
+            self.counters["position_missing"] += 1
+        nis, dof = self._update(zs, zv, rs, rv, s_measured, dt, decoupled)
+        # ---- safeguards -------------------------------------------------------------------------------
+        x = self._x
+        if not math.isfinite(sum(x) + sum(self._P) + nis):  # NaN or inf anywhere
+            health = self._hard_reset(zs, zv)
+            nis, dof = 0.0, 0
+        else:
+            if project_nonnegative(x, self._P, _NONNEG, cfg.nonnegative):
+                self.counters["projections"] += 1
+            flag = self._set_cov(self._P)
+            if flag == HEALTH_RESET:
+                health = self._hard_reset(zs, zv)
+            elif flag == HEALTH_REPAIRED:
+                health = HEALTH_REPAIRED
+        if self._nis_push(nis, dof) and health == HEALTH_OK:
+            health = HEALTH_DEGRADED
+            self.counters["degraded"] += 1
+        self._last_stamp = stamp_ns
+        self._zv_prev = zv
+        self._g_prev = g
+        self._pw_prev = (power_valid, power_consumed, power_regen)
+        x = self._x
+        vf = x[1]
+        resistance = x[2] + (x[3] + x[4] * vf) * vf
+        return (x[0], vf, x[2], x[3], x[4], effort, a_obs, resistance, g, nis, known, health, dt, u, decoupled)
+
+    def _first_sample(self, stamp_ns, zv, g, power_valid, pc, pr, health) -> tuple:
+        self._slope.push(stamp_ns * 1e-9, zv)
+        if self._exploit:
+            self._coast_slope.push(stamp_ns * 1e-9, zv)
+        self._last_stamp = stamp_ns
+        self._zv_prev = zv
+        self._g_prev = g
+        self._pw_prev = (power_valid, pc, pr)
+        x = self._x
+        vf = x[1]
+        resistance = x[2] + (x[3] + x[4] * vf) * vf
+        return (x[0], vf, x[2], x[3], x[4], 0.0, 0.0, resistance, g, 0.0, False, health, 0.0, 0.0, False)
+
+    def _rejected(self, stamp_ns: int) -> tuple:
+        """A sample that cannot be used (NaN or negative speed, NaN track force, stamp older than the last):
+        counted, the filter is left as it is, and the current estimate is returned."""
+        self.counters["invalid_input"] += 1
+        x = self._x if self._x is not None else [0.0, 0.0, *self.prior.as_tuple()]
+        if self._x is None:
+            self._set_cov(tuple(self._initial_cov(self.prior.as_tuple())))
+        vf = x[1]
+        resistance = x[2] + (x[3] + x[4] * vf) * vf
+        return (
+            x[0],
+            vf,
+            x[2],
+            x[3],
+            x[4],
+            self._last_effort,
+            self._last_accel,
+            resistance,
+            self._g_prev,
+            0.0,
+            False,
+            HEALTH_OK,
+            0.0,
+            self._last_input,
+            False,
+        )
+
+    def _hard_reset(self, zs: float, zv: float) -> int:
+        """Invalid state or covariance: restart at the measurement from the prior (Table 1 covariance)."""
+        self.counters["resets"] += 1
+        self._initialise(zs, zv, False)
+        return HEALTH_RESET
+
+    def _nis_push(self, nis: float, dof: int) -> bool:
+        ring = self._nis_ring
+        ring.append((nis, dof))
+        self._nis_sum += nis
+        self._nis_dof += dof
+        if len(ring) > self.config.nis_window:
+            old, odof = ring.pop(0)
+            self._nis_sum -= old
+            self._nis_dof -= odof
+        if len(ring) < self.config.nis_window or self._nis_dof <= 0:
+            return False
+        return self._nis_sum > self._nis_limit[self._nis_dof]
+
+    # -- the closed-form unscented step -------------------------------------------------------------
+    def _predict(self, dt: float, u: float, g: float, decoupled: bool) -> None:
+        x = self._x
+        s, v, r0, r1, r2 = x
+        l00, l10, l20, l30, l40, l11, l21, l31, l41, l22, l32, l42, l33, l43, l44 = self._L
+        p00, p01, p02, p03, p04, p11, p12, p13, p14, p22, p23, p24, p33, p34, p44 = self._P
+        c = self._c
+        c2 = self._c2
+        w = u - g
+        h = 0.5 * dt
+        mid = self._midpoint
+        # acceleration at the mean
+        a0 = w - r0 - (r1 + r2 * v) * v
+        vh = v + h * a0
+        if mid:
+            a0 = w - r0 - (r1 + r2 * vh) * vh
+
+        # deviation of a for a perturbation (dv, d0, d1, d2) of (v, r0, r1, r2)
+        def da(dv: float, d0: float, d1: float, d2: float) -> float:
+            w1 = v + dv
+            dr = d0 + (d1 + d2 * w1) * w1 + (r1 + r2 * (2.0 * v + dv)) * dv
+            if not mid:
+                return -dr
+            dvh = dv - h * dr
+            wh = vh + dvh
+            return -(d0 + (d1 + d2 * wh) * wh + (r1 + r2 * (2.0 * vh + dvh)) * dvh)
+
+        if decoupled:
+            # r's enter the process at their mean: only the v-components of the sigma points matter
+            dv0 = c * l10
+            ap, am = da(dv0, 0.0, 0.0, 0.0), da(-dv0, 0.0, 0.0, 0.0)
+            o0, e0 = 0.5 * (ap - am), 0.5 * (ap + am)
+            dv1 = c * l11
+            ap, am = da(dv1, 0.0, 0.0, 0.0), da(-dv1, 0.0, 0.0, 0.0)
+            o1, e1 = 0.5 * (ap - am), 0.5 * (ap + am)
+            o2 = e2 = o3 = e3 = o4 = e4 = 0.0
+        else:
+            dv0, d00, d10, d20 = c * l10, c * l20, c * l30, c * l40
+            ap, am = da(dv0, d00, d10, d20), da(-dv0, -d00, -d10, -d20)
+            o0, e0 = 0.5 * (ap - am), 0.5 * (ap + am)
+            dv1, d01, d11, d21 = c * l11, c * l21, c * l31, c * l41
+            ap, am = da(dv1, d01, d11, d21), da(-dv1, -d01, -d11, -d21)
+            o1, e1 = 0.5 * (ap - am), 0.5 * (ap + am)
+            d02, d12, d22 = c * l22, c * l32, c * l42
+            ap, am = da(0.0, d02, d12, d22), da(0.0, -d02, -d12, -d22)
+            o2, e2 = 0.5 * (ap - am), 0.5 * (ap + am)
+            d13, d23 = c * l33, c * l43
+            ap, am = da(0.0, 0.0, d13, d23), da(0.0, 0.0, -d13, -d23)
+            o3, e3 = 0.5 * (ap - am), 0.5 * (ap + am)
+            d24 = c * l44
+            ap, am = da(0.0, 0.0, 0.0, d24), da(0.0, 0.0, 0.0, -d24)
+            o4, e4 = 0.5 * (ap - am), 0.5 * (ap + am)
+        big_e = (e0 + e1 + e2 + e3 + e4) / c2
+        abar = a0 + big_e
+        q = (
+            self._beta_alpha * big_e * big_e
+            + (o0 * o0 + o1 * o1 + o2 * o2 + o3 * o3 + o4 * o4 + e0 * e0 + e1 * e1 + e2 * e2 + e3 * e3 + e4 * e4) / c2
+        )
+        ic = 1.0 / c
+        m0 = l00 * o0 * ic
+        m1 = (l10 * o0 + l11 * o1) * ic
+        m2 = (l20 * o0 + l21 * o1 + l22 * o2) * ic
+        m3 = (l30 * o0 + l31 * o1 + l32 * o2 + l33 * o3) * ic
+        m4 = (l40 * o0 + l41 * o1 + l42 * o2 + l43 * o3 + l44 * o4) * ic
+        b0 = h * dt
+        b1 = dt
+        self._m = (m0, m1, m2, m3, m4)
+        m0 = m0 + dt * m1  # A m
+        # mean
+        x[0] = s + dt * v + b0 * abar
+        x[1] = v + dt * abar
+        # A P A^T
+        n01 = p01 + dt * p11
+        n00 = p00 + dt * (p01 + n01)
+        n02 = p02 + dt * p12
+        n03 = p03 + dt * p13
+        n04 = p04 + dt * p14
+        # + A m b^T + b m^T A^T + q b b^T
+        n00 += 2.0 * m0 * b0 + q * b0 * b0
+        n01 += m0 * b1 + b0 * m1 + q * b0 * b1
+        n11 = p11 + 2.0 * m1 * b1 + q * b1 * b1
+        n02 += b0 * m2
+        n03 += b0 * m3
+        n04 += b0 * m4
+        n12 = p12 + b1 * m2
+        n13 = p13 + b1 * m3
+        n14 = p14 + b1 * m4
+        # gain basis without Q (used when update_uses_process_noise is false)
+        self._q_sv = (0.0, 0.0, 0.0)
+        qa = self._qa
+        if qa > 0.0:
+            qs, qsv, qv = qa * b0 * b0, qa * b0 * b1, qa * b1 * b1
+            n00 += qs
+            n01 += qsv
+            n11 += qv
+            if not self._use_q_gain:
+                self._q_sv = (qs, qsv, qv)
+        qr0, qr1, qr2 = self._qr
+        self._P = (
+            n00,
+            n01,
+            n02,
+            n03,
+            n04,
+            n11,
+            n12,
+            n13,
+            n14,
+            p22 + qr0 * dt,
+            p23,
+            p24,
+            p33 + qr1 * dt,
+            p34,
+            p44 + qr2 * dt,
+        )
+
+    def _update(
+        self, zs: float, zv: float, rs: float, rv: float, s_measured: bool, dt: float, consider: bool = False
+    ) -> tuple[float, int]:
+        """Linear Kalman update with z = (s, v) or v; ``consider``: r is a consider parameter (Schmidt-Kalman):
+        its gain is zero, so r and P_rr stay, and the r-(s, v) covariances get the Joseph-form update."""
+        x = self._x
+        p00, p01, p02, p03, p04, p11, p12, p13, p14, p22, p23, p24, p33, p34, p44 = self._P
+        if dt > 0.0:
+            qs, qsv, qv = self._q_sv
+        else:
+            qs = qsv = qv = 0.0
+        # Pxz columns (s and v) in the gain basis
+        c00, c01, c11 = p00 - qs, p01 - qsv, p11 - qv
+        nu1 = zv - x[1]
+        if s_measured:
+            nu0 = zs - x[0]
+            s00, s01, s11 = c00 + rs, c01, c11 + rv
+            det = s00 * s11 - s01 * s01
+            if not det > 0.0:
+                return math.nan, 2
+            i00, i01, i11 = s11 / det, -s01 / det, s00 / det
+            # rows of Pxz: (col s, col v)
+            a0, b0_ = c00, c01
+            a1, b1_ = c01, c11
+            a2, b2_ = p02, p12
+            a3, b3_ = p03, p13
+            a4, b4_ = p04, p14
+            k00, k01 = a0 * i00 + b0_ * i01, a0 * i01 + b0_ * i11
+            k10, k11 = a1 * i00 + b1_ * i01, a1 * i01 + b1_ * i11
+            k20, k21 = a2 * i00 + b2_ * i01, a2 * i01 + b2_ * i11
+            k30, k31 = a3 * i00 + b3_ * i01, a3 * i01 + b3_ * i11
+            k40, k41 = a4 * i00 + b4_ * i01, a4 * i01 + b4_ * i11
+            x[0] += k00 * nu0 + k01 * nu1
+            x[1] += k10 * nu0 + k11 * nu1
+            if consider:
+                k20 = k21 = k30 = k31 = k40 = k41 = 0.0
+            x[2] += k20 * nu0 + k21 * nu1
+            x[3] += k30 * nu0 + k31 * nu1
+            x[4] += k40 * nu0 + k41 * nu1
+            self._P = (
+                p00 - (k00 * a0 + k01 * b0_),
+                p01 - (k00 * a1 + k01 * b1_),
+                p02 - (k00 * a2 + k01 * b2_),
+                p03 - (k00 * a3 + k01 * b3_),
+                p04 - (k00 * a4 + k01 * b4_),
+                p11 - (k10 * a1 + k11 * b1_),
+                p12 - (k10 * a2 + k11 * b2_),
+                p13 - (k10 * a3 + k11 * b3_),
+                p14 - (k10 * a4 + k11 * b4_),
+                p22 - (k20 * a2 + k21 * b2_),
+                p23 - (k20 * a3 + k21 * b3_),
+                p24 - (k20 * a4 + k21 * b4_),
+                p33 - (k30 * a3 + k31 * b3_),
+                p34 - (k30 * a4 + k31 * b4_),
+                p44 - (k40 * a4 + k41 * b4_),
+            )
+            return nu0 * nu0 * i00 + 2.0 * nu0 * nu1 * i01 + nu1 * nu1 * i11, 2
+        sv = c11 + rv
+        if not sv > 0.0:
+            return math.nan, 1
+        b0_, b1_, b2_, b3_, b4_ = c01, c11, p12, p13, p14
+        k0, k1, k2, k3, k4 = b0_ / sv, b1_ / sv, b2_ / sv, b3_ / sv, b4_ / sv
+        if consider:
+            k2 = k3 = k4 = 0.0
+        x[0] += k0 * nu1
+        x[1] += k1 * nu1
+        x[2] += k2 * nu1
+        x[3] += k3 * nu1
+        x[4] += k4 * nu1
+        self._P = (
+            p00 - k0 * b0_,
+            p01 - k0 * b1_,
+            p02 - k0 * b2_,
+            p03 - k0 * b3_,
+            p04 - k0 * b4_,
+            p11 - k1 * b1_,
+            p12 - k1 * b2_,
+            p13 - k1 * b3_,
+            p14 - k1 * b4_,
+            p22 - k2 * b2_,
+            p23 - k2 * b3_,
+            p24 - k2 * b4_,
+            p33 - k3 * b3_,
+            p34 - k3 * b4_,
+            p44 - k4 * b4_,
+        )
+        return nu1 * nu1 / sv, 1
