@@ -59,3 +59,19 @@ def test_invalid_train_files(tmp_path, data_dir, mutate, key, problem):
         load_train(path)
     assert str(err.value).startswith(f"{path}: {key}: ") and problem in str(err.value)
     assert "\n" not in str(err.value)
+
+
+@pytest.mark.parametrize("c1", [0.0, 0.01, -0.005, -0.02])
+def test_envelope_switches_at_the_first_crossing(c1):
+    c0, c2 = 0.6, 6.0
+    v_t = physics.transition_speed(c0, c2, c1)
+    v = np.linspace(0.1, 80.0, 2000)
+    f = physics.tractive_envelope(v, c0, c2, c1)
+    if np.isfinite(v_t):
+        assert c0 + c1 * v_t == pytest.approx(c2 / v_t)
+        below, above = v <= v_t, v > v_t
+        assert np.allclose(f[below], np.maximum(c0 + c1 * v[below], 0.0))
+        assert np.allclose(f[above], c2 / v[above])  # not min(): with c1 < 0 the line re-crosses later
+    else:
+        assert np.allclose(f, np.maximum(c0 + c1 * v, 0.0))
+    assert np.all(f >= 0.0)

@@ -27,21 +27,30 @@ def davis(v_ms, r0: float, r1: float, r2: float, tunnel_fraction=0.0, tunnel_fac
 
 
 def tractive_envelope(v_ms, c0: float, c2: float, c1: float = 0.0):
-    """Maximum tractive effort, N/kg: c0 + c1 v below the transition speed, c2 / v above (Besinovic eq. 4).
+    """Maximum tractive effort, N/kg: c0 + c1 v up to the transition speed, c2 / v above (Besinovic eq. 4).
 
-    c0 in N/kg, c1 in N/(kg m/s), c2 (maximum power per unit effective mass) in W/kg.
+    c0 in N/kg, c1 in N/(kg m/s), c2 (maximum power per unit effective mass) in W/kg. The switch is at
+    the first crossing of the two branches (``transition_speed``); without a crossing (c1 < 0 and the
+    line always below the hyperbola) the linear branch holds throughout. Never negative.
     """
     v = np.asarray(v_ms, dtype=float)
+    v_t = transition_speed(c0, c2, c1)
     with np.errstate(divide="ignore"):
         hyperbolic = np.where(v > 0.0, c2 / np.maximum(v, 1e-12), np.inf)
-    return np.minimum(c0 + c1 * v, hyperbolic)
+    return np.maximum(np.where(v <= v_t, c0 + c1 * v, hyperbolic), 0.0)
 
 
 def transition_speed(c0: float, c2: float, c1: float = 0.0) -> float:
-    """Speed (m/s) where c0 + c1 v = c2 / v: the switch from the effort to the power limit."""
+    """Speed (m/s) of the first crossing of c0 + c1 v and c2 / v: the switch from the effort to the power limit.
+
+    inf when the branches never cross (c1 < 0 with c0^2 + 4 c1 c2 < 0).
+    """
     if c1 == 0.0:
         return c2 / c0
-    return float((-c0 + np.sqrt(c0 * c0 + 4.0 * c1 * c2)) / (2.0 * c1))
+    discriminant = c0 * c0 + 4.0 * c1 * c2
+    if discriminant < 0.0:
+        return float("inf")
+    return float((-c0 + np.sqrt(discriminant)) / (2.0 * c1))
 
 
 def adhesion_coefficient(v_ms):
