@@ -8,11 +8,15 @@ median over repeats, core only (targets: < 5 ms at 10 s, < 50 ms at 1 Hz).
 * resistance: start from the true Davis coefficients times (1 +- 20 %) (six sign patterns), report the
   error of r(v) at 40, 80, 120 km/h and of each coefficient at the end of the run, mean |error| and
   spread over runs, per configuration (paper Table 1, converging preset, and the engineering options);
-* regimes: confusion matrix against the simulator's labels on the bundled bags (through the ingest, as
-  the node graph runs them) and on simulated runs, next to the ceiling of the rule itself (the rule
-  applied to the TRUE effort and acceleration);
-* features: brake rate per ATB-EG step, cruise speed, max tractive power, final coast and final brake
-  durations, against the same definitions applied to the dense (0.5 s) truth.
+* regimes: accuracy against the simulator's driver-phase labels of the paper's rule (with and without hold
+  detection) and of the HMM filter (as the node graph calls it: effort, acceleration, speed; and with the
+  estimate's effort_known and resistance + track force), on the proof runs (seeds [4, k], mixed styles) and on
+  fresh validation runs (seeds [11, k], both cruising styles, two tracks and trains), next to the ceiling of a
+  recogniser of the step (the regime that fills most of the step ending at each sample, from the dense truth);
+  confusion matrices; the bundled bags through the ingest (run_bag), as the node graph runs them;
+* features: brake rate per ATB-EG step, cruise speed, max tractive power (against the same definitions on the
+  dense 0.5 s truth), final coast and final brake durations (against the simulator's exact phases, the truth
+  JSON summary).
 
     .venv/bin/python bench/bench_whole_run.py [--repeats N] [--accuracy [--runs N]] [--json PATH]
 """
@@ -51,14 +55,22 @@ SPEEDS_KMH = (40.0, 80.0, 120.0)
 
 
 # -- simulated runs --------------------------------------------------------------------------------
-def simulate(k: int, period: float, power: bool = False, track_name: str = "intercity_32km", train_name: str = "virm6"):
+def simulate(
+    k: int,
+    period: float,
+    power: bool = False,
+    track_name: str = "intercity_32km",
+    train_name: str = "virm6",
+    seed: int = 4,
+    styles: tuple[str, ...] = ("hold", "cycles"),
+):
     """Run k: true resistance = train file x (1 +- U(5, 20) %), a driver drawn from the papers' ranges."""
     track = load_track(track_file(track_name))
     train = load_train(train_file(train_name))
-    rng = np.random.default_rng([4, k])
+    rng = np.random.default_rng([seed, k])
     factors = 1.0 + rng.choice([-1.0, 1.0], 3) * rng.uniform(0.05, 0.2, 3)
     truth = Davis(*(np.array(train.davis.as_tuple()) * factors))
-    driver = DriverParams.sample(rng, train=train)
+    driver = DriverParams.sample(rng, train=train, styles=styles)
     sensors = SensorParams(gnss_period_s=period, speed_period_s=period, power_period_s=period if power else 0.0)
     run = simulate_run(track, train, driver=driver, sensors=sensors, rng=rng, resistance=truth)
     return run, run.measurements(track, train), truth, train
@@ -74,8 +86,9 @@ def resistance_errors(est: Davis, truth: Davis) -> list[float]:
     return out + [(a - b) / b for a, b in zip(est.as_tuple(), truth.as_tuple())]
 
 
+PAPER = "paper (Table 1, computed effort)"
 CONFIGS = {
-    "paper (Table 1, computed effort)": UKFConfig(),
+    PAPER: UKFConfig(),
     "paper + known effort": UKFConfig(effort_mode="exploit_known"),
     "converging": UKFConfig.converging(),
     "converging, r coupled (no consider)": UKFConfig.converging(decouple_unknown_effort=False),
@@ -85,13 +98,6 @@ CONFIGS = {
     "converging, r noise": UKFConfig.converging(noise_r0=1e-5, noise_r1=1e-7, noise_r2=1e-7),
     "converging, euler": UKFConfig.converging(integration="euler"),
 }
-
-
-REGIME_VARIANTS = (
-    ("paper (Table 1, computed effort)", RegimeConfig()),
-    ("converging", RegimeConfig()),
-    ("converging", RegimeConfig(hold_detection=True)),
-)
 
 
 def resistance_table(runs, configs=CONFIGS) -> dict:
@@ -126,6 +132,70 @@ def confusion(truth: np.ndarray, est: np.ndarray) -> np.ndarray:
     return np.array([[int(np.sum((truth == i) & (est == j))) for j in range(5)] for i in range(5)])
 
 
+def step_majority(dense, t_ns: np.ndarray) -> np.ndarray:
+    """The regime that fills most of the step ending at each stamp (dense truth): the best a recogniser of the
+    step's effort and acceleration can give; standing stays UNKNOWN."""
+    out = np.zeros(t_ns.size, dtype=np.uint8)
+    prev = t_ns[0] - 1
+    for i, t in enumerate(t_ns):
+        m = (dense.t_ns > prev) & (dense.t_ns <= t)
+        if m.any():
+            out[i] = np.bincount(dense.regime[m], minlength=5).argmax()
+        prev = t
+    return out
+
+
+REGIME_METHODS = {
+    "rule (paper)": (RegimeConfig(method="rule"), False),
+    "rule + hold detection": (RegimeConfig(method="rule", hold_detection=True), False),
+    "hmm (effort, acceleration, speed)": (RegimeConfig(), False),
+    "hmm + effort_known, r + g": (RegimeConfig(), True),
+}
+
+
+def regimes_for(est, rcfg: RegimeConfig, full: bool) -> np.ndarray:
+    if not full:
+        return classify_regimes(est.effort, est.acceleration, rcfg, speed=est.v)
+    return classify_regimes(
+        est.effort,
+        est.acceleration,
+        rcfg,
+        speed=est.v,
+        effort_known=est.effort_known,
+        opposing_force=est.resistance + est.track_force,
+    )
+
+
+def final_phase_errors(f, summary) -> tuple[float, float]:
+    return float(f.final_coast_duration - summary["final_coast_s"]), float(
+        f.final_brake_duration - summary["final_brake_s"]
+    )
+
+
+def sim_regimes_features(runs, cfg: UKFConfig, fcfg: FeatureConfig, period: float) -> dict:
+    """Per method: confusion matrix and per-run accuracy (with the cruising style); the step ceiling; features of
+    the full-information hmm regimes against truth."""
+    out = {name: {"confusion": np.zeros((5, 5), dtype=int), "runs": []} for name in REGIME_METHODS}
+    ceiling, feats = [], []
+    for run, ms, _truth, _train in runs:
+        est = estimate_run(ms, _train, cfg)
+        t = run.truth
+        style = run.meta["driver"]["cruise_style"]
+        ceiling.append((style, float(np.mean(step_majority(run.dense, t.t_ns) == t.regime))))
+        for name, (rcfg, full) in REGIME_METHODS.items():
+            reg = regimes_for(est, rcfg, full)
+            out[name]["confusion"] += confusion(t.regime, reg)
+            out[name]["runs"].append((style, float(np.mean(reg == t.regime))))
+        reg = regimes_for(est, RegimeConfig(), True)
+        f_est = extract_features(est, reg, fcfg)
+        f_truth = extract_features(truth_series(run.dense), run.dense.regime, fcfg)
+        item = feature_errors(f_est, f_truth, period)
+        item["final_coast_err_s"], item["final_brake_err_s"] = final_phase_errors(f_est, run.meta["summary"])
+        item["style"] = style
+        feats.append(item)
+    return {"methods": out, "ceiling": ceiling, "features": feats}
+
+
 def feature_errors(est_f, truth_f, period: float) -> dict:
     out = {}
     both = (est_f.brake_rate_count > 0) & (truth_f.brake_rate_count > 0)
@@ -134,29 +204,8 @@ def feature_errors(est_f, truth_f, period: float) -> dict:
     out["max_power_rel_err"] = float(
         (est_f.max_tractive_power - truth_f.max_tractive_power) / truth_f.max_tractive_power
     )
-    out["final_coast_err_s"] = float(est_f.final_coast_duration - truth_f.final_coast_duration)
-    out["final_brake_err_s"] = float(est_f.final_brake_duration - truth_f.final_brake_duration)
     out["period"] = period
     return out
-
-
-def sim_regimes_features(runs, cfg: UKFConfig, rcfg: RegimeConfig, fcfg: FeatureConfig, period: float) -> dict:
-    cm = np.zeros((5, 5), dtype=int)
-    cm_rule = np.zeros((5, 5), dtype=int)
-    cm_vs_rule = np.zeros((5, 5), dtype=int)
-    feats = []
-    for run, ms, _truth, train in runs:
-        est = estimate_run(ms, train, cfg)
-        reg = classify_regimes(est.effort, est.acceleration, rcfg, speed=est.v)
-        t = run.truth
-        rule = classify_regimes(t.u, t.a, rcfg, speed=t.v)
-        cm += confusion(t.regime, reg)
-        cm_rule += confusion(t.regime, rule)
-        cm_vs_rule += confusion(rule, reg)
-        f_est = extract_features(est, reg, fcfg)
-        f_truth = extract_features(truth_series(run.dense), run.dense.regime, fcfg)
-        feats.append(feature_errors(f_est, f_truth, period))
-    return {"confusion": cm, "rule_ceiling": cm_rule, "vs_rule": cm_vs_rule, "features": feats}
 
 
 def bag_regimes(cfg: UKFConfig, rcfg: RegimeConfig, fcfg: FeatureConfig) -> dict:
@@ -175,29 +224,47 @@ def bag_regimes(cfg: UKFConfig, rcfg: RegimeConfig, fcfg: FeatureConfig) -> dict
         est = EstimateSeries.from_samples(res.estimates)
         reg = np.array([r.regime for r in res.regimes], dtype=np.uint8)
         t = tf.truth
-        idx = np.searchsorted(t.t_ns, est.stamp_ns)
-        idx = np.minimum(idx, len(t) - 1)
+        idx = np.minimum(np.searchsorted(t.t_ns, est.stamp_ns), len(t) - 1)
         ok = t.t_ns[idx] == est.stamp_ns
         tr = t.regime[idx[ok]]
-        rule = classify_regimes(t.u, t.a, rcfg, speed=t.v)[idx[ok]]
-        period = float(meta["sensors"]["speed_period_s"])
-        f_est = res.features[-1] if res.features else None
+        dense = simulate_dense(meta)
+        ceiling = step_majority(dense, t.t_ns)[idx[ok]] if dense is not None else None
         truth_d = Davis(**meta["resistance"])
         item = {
             "accuracy": float(np.mean(tr == reg[ok])),
-            "rule_ceiling": float(np.mean(tr == rule)),
-            "vs_rule": float(np.mean(rule == reg[ok])),
+            "step_ceiling": float(np.mean(ceiling == tr)) if ceiling is not None else None,
             "confusion": confusion(tr, reg[ok]).tolist(),
             "resistance_err_pct": (np.array(resistance_errors(est.final_davis(), truth_d)) * 100).round(2).tolist(),
-            "period": period,
+            "period": float(meta["sensors"]["speed_period_s"]),
         }
-        if f_est is not None:
+        if res.features:
+            f = res.features[-1]
             summ = meta["summary"]
-            item["final_coast_est_truth_s"] = [f_est.final_coast_duration, summ["final_coast_s"]]
-            item["final_brake_est_truth_s"] = [f_est.final_brake_duration, summ["final_brake_s"]]
-            item["cruise_speed_est_kmh"] = f_est.cruise_speed / KMH
+            item["final_coast_est_truth_s"] = [f.final_coast_duration, summ["final_coast_s"]]
+            item["final_brake_est_truth_s"] = [f.final_brake_duration, summ["final_brake_s"]]
         out[Path(bag).name] = item
     return out
+
+
+def simulate_dense(meta: dict):
+    """The dense truth of a bundled run, regenerated from its recorded command (the bag keeps the rows at the
+    speed stamps only)."""
+    import tempfile
+
+    from train_calib.commands.simulate import add_arguments
+    from train_calib.commands.simulate import run as simulate_cmd
+    from train_calib.sim import read_truth
+
+    cmd = meta.get("command", "").split()
+    if cmd[:2] != ["train-calib", "simulate"]:
+        return None
+    parser = argparse.ArgumentParser()
+    add_arguments(parser)
+    with tempfile.TemporaryDirectory() as tmp:
+        args = parser.parse_args([*cmd[2:], "--out", tmp, "--quiet", "--dense"])
+        simulate_cmd(args)
+        bag = next(p for p in Path(tmp).iterdir() if p.is_dir())
+        return read_truth(bag).dense
 
 
 # -- timing ----------------------------------------------------------------------------------------
@@ -222,6 +289,51 @@ def timing(repeats: int) -> dict:
     return out
 
 
+def _pair(x) -> str:
+    return "-" if x is None else f"{x[0]:.1f}/{x[1]:.1f} s ({x[0] - x[1]:+.1f})"
+
+
+def _report_regimes(title: str, rf: dict, period: float) -> dict:
+    """Print accuracy per method (all runs, hold runs, cycles runs), the step ceiling, the hmm confusion matrix and
+    the feature errors; return them JSON-ready."""
+    print(f"\n### regimes and features, {title}, {len(rf['ceiling'])} runs")
+
+    def share(pairs, style=None):
+        vals = [a for s, a in pairs if style is None or s == style]
+        return f"{np.mean(vals):.1%} (min {np.min(vals):.1%})" if vals else "-"
+
+    print("| method | all | hold | cycles |\n|---|---|---|---|")
+    out: dict = {"methods": {}}
+    for name, item in rf["methods"].items():
+        cm = item["confusion"]
+        runs = item["runs"]
+        print(f"| {name} | {np.trace(cm) / cm.sum():.1%} | {share(runs, 'hold')} | {share(runs, 'cycles')} |")
+        out["methods"][name] = {"confusion": cm.tolist(), "runs": item["runs"]}
+    print(
+        f"| step ceiling | {share(rf['ceiling'])} | {share(rf['ceiling'], 'hold')} | {share(rf['ceiling'], 'cycles')} |"
+    )
+    print("hmm (full) confusion, rows truth, columns estimate (UNK, TRA, CRU, COA, BRA):")
+    print(rf["methods"]["hmm + effort_known, r + g"]["confusion"])
+    feats = rf["features"]
+    br = np.concatenate([f["brake_rate_abs_err"] for f in feats]) if feats else np.zeros(0)
+    coast = np.array([f["final_coast_err_s"] for f in feats])
+    brake = np.array([f["final_brake_err_s"] for f in feats])
+    hold = [f["cruise_speed_err_kmh"] for f in feats if f["style"] == "hold"]
+    print(
+        f"features: brake rate |err| median {np.median(br) if br.size else np.nan:.3f} max "
+        f"{np.max(br) if br.size else np.nan:.3f} m/s^2; cruise speed |err| (hold runs) max "
+        f"{np.nanmax(np.abs(hold)) if hold else np.nan:.2f} km/h; max power rel err "
+        f"{[round(f['max_power_rel_err'], 3) for f in feats]}"
+    )
+    for name, err in (("final coast", coast), ("final brake", brake)):
+        print(
+            f"{name} err vs truth: within one sample period {np.mean(np.abs(err) <= period + 1e-9):.0%}, median |err| "
+            f"{np.median(np.abs(err)):.1f} s, range {err.min():+.1f}..{err.max():+.1f} s: {np.round(err, 1).tolist()}"
+        )
+    out.update(ceiling=rf["ceiling"], features=feats)
+    return out
+
+
 def _fmt_table(res: dict) -> str:
     head = "| configuration | r(40) | r(80) | r(120) | r0 | r1 | r2 | DEGRADED |\n|---|---|---|---|---|---|---|---|"
     rows = [
@@ -236,6 +348,9 @@ def main() -> int:
     parser.add_argument("--repeats", type=int, default=20)
     parser.add_argument("--accuracy", action="store_true", help="the proof tables (slow: simulates runs)")
     parser.add_argument("--runs", type=int, default=12, help="simulated runs per sampling (accuracy)")
+    parser.add_argument(
+        "--valid-runs", type=int, default=5, help="validation runs per track, sampling and cruising style (accuracy)"
+    )
     parser.add_argument("--json", default=str(REPO / "bench" / "out" / "bench_whole_run.json"))
     args = parser.parse_args()
     result: dict = {"timing": timing(args.repeats)}
@@ -246,6 +361,7 @@ def main() -> int:
     print(f"load average {result['timing']['load_before']:.2f} on {result['timing']['cpus']} cpus")
     if args.accuracy:
         fcfg = FeatureConfig()
+        conv = CONFIGS["converging"]
         acc: dict = {}
         for label, period, power in (("10 s", 10.0, False), ("1 Hz", 1.0, False), ("1 Hz + power", 1.0, True)):
             runs = [simulate(k, period, power) for k in range(args.runs)]
@@ -253,43 +369,30 @@ def main() -> int:
             acc[label] = {"resistance": res}
             print(f"\n### resistance, {label}, {len(runs)} runs: mean |error| ± std over runs, %\n")
             print(_fmt_table(res))
-            for cname, rcfg in REGIME_VARIANTS:
-                cfg = CONFIGS[cname]
-                cname = f"{cname} / {'hold detection' if rcfg.hold_detection else 'paper rule'}"
-                rf = sim_regimes_features(runs, cfg, rcfg, fcfg, period)
-                n = rf["confusion"].sum()
-                print(
-                    f"\nregimes {label} {cname}: accuracy {np.trace(rf['confusion']) / n:.1%}, "
-                    f"rule ceiling {np.trace(rf['rule_ceiling']) / n:.1%}, vs rule on truth "
-                    f"{np.trace(rf['vs_rule']) / n:.1%}"
-                )
-                print(rf["confusion"])
-                feats = rf["features"]
-                br = np.concatenate([f["brake_rate_abs_err"] for f in feats]) if feats else np.zeros(0)
-                print(
-                    f"features: brake rate |err| median {np.median(br):.3f} max {np.max(br):.3f} m/s^2; "
-                    f"cruise speed err {[round(f['cruise_speed_err_kmh'], 2) for f in feats]} km/h; "
-                    f"max power rel err {[round(f['max_power_rel_err'], 3) for f in feats]}; "
-                    f"final coast err {[round(f['final_coast_err_s'], 1) for f in feats]} s; "
-                    f"final brake err {[round(f['final_brake_err_s'], 1) for f in feats]} s"
-                )
-                acc[label][cname] = {
-                    "confusion": rf["confusion"].tolist(),
-                    "rule_ceiling": rf["rule_ceiling"].tolist(),
-                    "vs_rule": rf["vs_rule"].tolist(),
-                    "features": feats,
-                }
-        for cname, rcfg in REGIME_VARIANTS:
-            bags = bag_regimes(CONFIGS[cname], rcfg, fcfg)
-            cname = f"{cname} / {'hold detection' if rcfg.hold_detection else 'paper rule'}"
+            rf = sim_regimes_features(runs, conv, fcfg, period)
+            acc[label]["regimes"] = _report_regimes(f"proof runs (seeds [4, k]), {label}", rf, period)
+        for track_name, train_name in (("intercity_32km", "virm6"), ("tunnel_line_37km", "icrm")):
+            for label, period, power in (("10 s", 10.0, False), ("1 Hz", 1.0, False), ("1 Hz + power", 1.0, True)):
+                for style in ("hold", "cycles"):
+                    runs = [
+                        simulate(k, period, power, track_name, train_name, seed=11, styles=(style,))
+                        for k in range(args.valid_runs)
+                    ]
+                    rf = sim_regimes_features(runs, conv, fcfg, period)
+                    key = f"validation {track_name}/{train_name} {label} {style}"
+                    acc[key] = _report_regimes(key, rf, period)
+        for cname, cfg in (("converging", conv), ("paper (Table 1, computed effort)", CONFIGS[PAPER])):
+            bags = bag_regimes(cfg, RegimeConfig(), fcfg)
             acc[f"bags {cname}"] = bags
-            print(f"\n### bundled bags, {cname}")
+            print(f"\n### bundled bags through run_bag, UKF {cname}, regimes hmm (node call)")
             for name, item in bags.items():
                 print(
-                    f"{name}: regimes {item['accuracy']:.1%} (rule ceiling {item['rule_ceiling']:.1%}, vs rule "
-                    f"{item['vs_rule']:.1%}), r err % {item['resistance_err_pct']}, final coast est/truth "
-                    f"{item.get('final_coast_est_truth_s')}, final brake {item.get('final_brake_est_truth_s')}"
+                    f"{name}: regimes {item['accuracy']:.1%} (step ceiling {item['step_ceiling']:.1%}), "
+                    f"r err % {item['resistance_err_pct']}, final coast est/truth "
+                    f"{_pair(item.get('final_coast_est_truth_s'))}, "
+                    f"final brake {_pair(item.get('final_brake_est_truth_s'))}"
                 )
+            print(np.sum([np.array(item["confusion"]) for item in bags.values()], axis=0))
         result["accuracy"] = acc
     Path(args.json).parent.mkdir(parents=True, exist_ok=True)
     Path(args.json).write_text(json.dumps(result, indent=1, default=float))

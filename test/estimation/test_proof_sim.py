@@ -1,6 +1,7 @@
 """Proof against truth on runs of the product simulator (train_calib.sim): intercity 32 km, virm6, true Davis
 coefficients 5-20 % off the train file's, drivers drawn from the papers' ranges, paper sensors (10 s, 4 m,
-1 km/h) and 1 Hz (with pantograph power). Bounds are the measured values (docs/estimator.md) with margin.
+1 km/h) and 1 Hz (with pantograph power); and the bundled bags. Bounds are the measured values
+(docs/estimator.md) with margin.
 """
 
 from __future__ import annotations
@@ -66,37 +67,52 @@ def test_known_effort_is_what_makes_r_identifiable():
     assert np.abs(known[1:]).max() < 0.08 < np.abs(r_errors(frozen, truth)[1:]).min()
 
 
-@pytest.mark.parametrize("period", [10.0, 1.0])
-def test_regimes_against_the_rule_on_the_true_signals(period):
-    """Estimated regimes agree with the rule applied to the TRUE effort and acceleration (measured 88-91 %);
-    against the simulator's driver-intent labels the rule itself is the ceiling (78-86 %, docs)."""
-    cm_rule = cm_label = 0
-    total = 0
-    rcfg = RegimeConfig(hold_detection=True)
-    for k in range(3):
-        run, ms, _truth, train = simulated_run(k, period)
+def regimes_of(est, cfg: RegimeConfig | None = None):
+    """The regimes as the graph publishes them, with the estimate's known-effort flag and r + g."""
+    return classify_regimes(
+        est.effort,
+        est.acceleration,
+        cfg or RegimeConfig(),
+        speed=est.v,
+        effort_known=est.effort_known,
+        opposing_force=est.resistance + est.track_force,
+    )
+
+
+@pytest.mark.parametrize(
+    "period, power, bound, margin, hold_bound",
+    [(10.0, False, 0.87, 0.08, 0.90), (1.0, False, 0.86, 0.06, 0.92), (1.0, True, 0.93, 0.03, 0.96)],
+)
+def test_regimes_against_the_drivers_labels(period, power, bound, margin, hold_bound):
+    """The HMM filter against the simulator's driver-phase labels, four runs (two hold, two traction/coast cycles).
+    Measured: 10 s 88.4 % (hold runs 91.5, 93.8; cycles 85.5, 83.2), the paper's rule with hold detection 77.2 %;
+    1 Hz 87.8 % (rule 78.8 %); 1 Hz with traction power 94.6 % (rule 89.7 %). What limits it: docs/estimator.md."""
+    right = rule_right = total = 0
+    for k in range(4):
+        run, ms, _truth, train = simulated_run(k, period, power)
         est = estimate_run(ms, train, UKFConfig.converging())
-        reg = classify_regimes(est.effort, est.acceleration, rcfg, speed=est.v)
-        t = run.truth
-        rule = classify_regimes(t.u, t.a, rcfg, speed=t.v)
-        cm_rule += int(np.sum(rule == reg))
-        cm_label += int(np.sum(t.regime == reg))
-        total += reg.size
-    assert cm_rule / total > (0.84 if period > 5 else 0.87)
-    assert cm_label / total > 0.50  # measured 55 % (10 s) and 61 % (1 Hz) on these three runs (two drive cycles)
+        reg = regimes_of(est)
+        labels = run.truth.regime
+        if run.meta["driver"]["cruise_style"] == "hold":
+            assert np.mean(reg == labels) > hold_bound
+        right += int(np.sum(reg == labels))
+        rule_right += int(np.sum(regimes_of(est, RegimeConfig(method="rule", hold_detection=True)) == labels))
+        total += labels.size
+    assert right / total > bound
+    assert (right - rule_right) / total > margin
 
 
 @pytest.mark.parametrize("period, power", [(10.0, False), (1.0, True)])
 def test_features_against_truth(period, power):
-    """Brake rate per step within 0.05 m/s^2, cruise speed within 2 km/h (runs holding the speed), max power
-    within 10 % where the driver reached at least 70 % of the train's, final brake within one sample period at
-    10 s (3 s at 1 Hz)."""
+    """Brake rate per step within 0.05 m/s^2, cruise speed within 2 km/h (runs holding the speed), max power within
+    10 % where the driver reached at least 70 % of the train's; final brake within one sample period at 10 s (measured
+    -5.5..-1.2 s) and 1 s at 1 Hz (-0.5..+0.4 s), against the simulator's exact phases (truth JSON summary); final
+    coast within one sample period at 10 s (-5.4..+5.6 s) and 4 s at 1 Hz with power (-1.1..+3.5 s)."""
     fcfg = FeatureConfig()
-    rcfg = RegimeConfig(hold_detection=True)
-    for k in range(3):
+    for k in range(4):
         run, ms, _truth, train = simulated_run(k, period, power)
         est = estimate_run(ms, train, UKFConfig.converging())
-        f = extract_features(est, classify_regimes(est.effort, est.acceleration, rcfg, speed=est.v), fcfg)
+        f = extract_features(est, regimes_of(est), fcfg)
         ft = extract_features(dense_truth_series(run.dense), run.dense.regime, fcfg)
         both = (f.brake_rate_count > 0) & (ft.brake_rate_count > 0)
         assert np.all(np.abs(f.brake_rate_mean - ft.brake_rate_mean)[both] < 0.05)
@@ -104,4 +120,42 @@ def test_features_against_truth(period, power):
             assert abs(f.cruise_speed - ft.cruise_speed) < 2 * KMH
         if ft.max_tractive_power > 0.7 * train.max_tractive_power:  # the driver reached (near) the maximum
             assert abs(f.max_tractive_power / ft.max_tractive_power - 1.0) < 0.10
-        assert abs(f.final_brake_duration - ft.final_brake_duration) <= max(period, 3.0) + 1e-6
+        summary = run.meta["summary"]
+        assert abs(f.final_brake_duration - summary["final_brake_s"]) <= period
+        assert abs(f.final_coast_duration - summary["final_coast_s"]) <= max(period, 4.0)
+
+
+def test_bundled_bags_through_the_graph():
+    """The bundled bags through the ingest and the core as the node graph runs them (run_bag, converging preset,
+    regimes from effort, acceleration and speed only). Measured: 91.6, 91.6, 89.6, 91.5, 90.9 % (10 s) and 92.1 %
+    (1 Hz); final brake -6.0..+1.5 s (10 s), -0.2 s (1 Hz); final coast within one sample period on four of the five
+    10 s bags, +18.5 s on _00 (the 40 km/h hold before the stop read as coasting), +2.2 s at 1 Hz."""
+    from train_calib.paths import bags_dir, track_file, train_file
+    from train_calib.pipeline import run_bag
+    from train_calib.sim import read_truth
+    from train_calib.track import load_track
+    from train_calib.train import load_train
+
+    accuracy, coast_ok = [], 0
+    bags = sorted(p for p in bags_dir().iterdir() if p.is_dir())
+    for bag in bags:
+        tf = read_truth(bag)
+        track = load_track(track_file(tf.meta["track"]["file"].removesuffix(".yaml")))
+        train = load_train(train_file(tf.meta["train"]["file"].removesuffix(".yaml")))
+        res = run_bag(bag, track, train, ukf=UKFConfig.converging())
+        stamps = np.array([r.stamp_ns for r in res.regimes])
+        regimes = np.array([r.regime for r in res.regimes])
+        idx = np.searchsorted(tf.truth.t_ns, stamps)
+        assert np.array_equal(tf.truth.t_ns[idx], stamps)
+        accuracy.append(float(np.mean(tf.truth.regime[idx] == regimes)))
+        period = float(tf.meta["sensors"]["speed_period_s"])
+        f, summary = res.features[-1], tf.meta["summary"]
+        assert f.run_complete and abs(f.final_brake_duration - summary["final_brake_s"]) <= period
+        coast_err = abs(f.final_coast_duration - summary["final_coast_s"])
+        if period >= 10.0:
+            assert coast_err < 30.0
+            coast_ok += coast_err <= period
+        else:
+            assert coast_err < 4.0  # measured 2.2 s: one sample period (1 s) is not reached at 1 Hz
+    assert min(accuracy) > 0.88 and np.mean(accuracy) > 0.90, accuracy
+    assert coast_ok >= 4  # of the five 10 s bags

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 import pytest
 from sim_helpers import track, train
@@ -192,6 +194,9 @@ def test_driver_sampling_follows_the_papers():
     assert b.min() >= 0.24 and b.max() <= trn.max_brake_decel
     assert np.mean(b[:, 4] >= b[:, 0] - 0.06) > 0.95  # braking harder at low speed
     assert {d.cruise_style for d in drivers} == {"hold", "cycles"}
+    band = np.array([d.cycle_band_kmh for d in drivers])
+    assert band.min() >= 6.0 and band.max() <= 15.0  # coasting 20-50 s at 140 km/h, longer lower
+    assert min(d.cycle_traction_fraction for d in drivers) >= 0.8
     with pytest.raises(ConfigError, match=r"^x.yaml: driver.b_limit: needs one value per speed step \(5\), found 2$"):
         DriverParams.from_mapping({"b_limit": [0.5, 0.5]}, "x.yaml", "driver.")
     with pytest.raises(ConfigError, match="DriverParams: b_limit"):
@@ -223,3 +228,48 @@ def test_a_fleet_of_random_drivers(seed):
         assert np.all(d.v <= max(driver.theta_cruise, 1.0) * limit + 1e-6), (track_name, driver)
         assert abs(run.meta["summary"]["stop_error_m"]) < 1e-3
         assert np.all(np.diff(d.s) >= -1e-9)
+
+
+def test_traction_coast_cycles_are_realistic(runs):
+    """Cycles (Cunillera Fig. 3: brief re-accelerations, coasting while above the target): every cycle coasts for
+    tens of seconds from the target down by the band, and its re-acceleration really accelerates (at least
+    cycle_min_accel net where it starts, up to the full envelope) back to the target."""
+    checked = 0
+    for _track, _train, driver, run in runs:
+        if driver.cruise_style != "cycles":
+            continue
+        d, t0 = run.dense, run.meta["start_time_ns"]
+        t = (d.t_ns - t0) * 1e-9
+        events = run.meta["summary"]["driver_events"]
+        for (ta, ea), (tb, eb) in itertools.pairwise(events):
+            if ea == "traction:target" and eb == "coast:band_low":  # a whole cycle coast
+                seg = (t >= ta) & (t <= tb)
+                assert tb - ta > 15.0, (ta, tb)
+                drop = d.v[seg][0] - d.v[seg][-1]
+                assert drop == pytest.approx(driver.cycle_band_kmh / 3.6, abs=0.1)  # 0.5 s grid
+                checked += 1
+            if ea == "coast:band_low":  # the re-acceleration: ramp, then traction up to the next event
+                tend = next((te for te, _e in events if te > ta + driver.reaccel_ramp_s + 1e-6), ta)
+                seg = (t > ta + driver.reaccel_ramp_s) & (t < tend) & (d.regime == TRACTION)
+                if seg.sum() > 4:  # after the ramp: accelerating (uphill 6 per mille at 143 km/h: 0.013 m/s^2)
+                    assert np.min(d.a[seg]) > 0.0 and np.mean(d.a[seg]) > 0.03
+    assert checked >= 10
+
+
+def test_final_phase_truth_is_the_last_coast_and_the_last_brake(runs):
+    """The truth JSON's final_coast_s / final_brake_s, checked on the dense labels: the last braking phase is the one
+    that ends at the stop, the final coast the last coasting phase before it (also where the run ends
+    brake -> hold at a lower limit -> stop brake)."""
+    for _track, _train, _driver, run in runs:
+        d, summary = run.dense, run.meta["summary"]
+        t = (d.t_ns - d.t_ns[0]) * 1e-9
+        moving = d.v > 0.0
+        cuts = np.flatnonzero(np.diff(d.regime.astype(int)) != 0) + 1
+        phases = [(int(d.regime[a]), t[a], t[b - 1]) for a, b in zip(np.r_[0, cuts], np.r_[cuts, t.size])]
+        brakes = [p for p in phases if p[0] == BRAKING]
+        coasts = [p for p in phases if p[0] == COASTING and p[2] <= brakes[-1][1] + 0.5]
+        arrival = t[moving][-1]
+        assert brakes[-1][2] == pytest.approx(arrival, abs=0.6)
+        dense_dt = run.meta["dense_dt_s"]
+        assert summary["final_brake_s"] == pytest.approx(brakes[-1][2] - brakes[-1][1], abs=2 * dense_dt)
+        assert summary["final_coast_s"] == pytest.approx(coasts[-1][2] - coasts[-1][1], abs=2 * dense_dt)

@@ -21,6 +21,7 @@ INTEGRATIONS = ("euler", "midpoint")
 NONNEGATIVE_RULES = ("project", "clip")
 CARRY_OVER = ("reset", "keep")
 PRESETS = ("paper", "converging")
+REGIME_METHODS = ("hmm", "rule")
 
 
 @dataclass(frozen=True)
@@ -225,22 +226,89 @@ class UKFConfig(ParamSet):
 
 @dataclass(frozen=True)
 class RegimeConfig(ParamSet):
-    """Driving regime recognition (Cunillera et al. 2022, Section 3.2)."""
+    """Driving regime recognition (Cunillera et al. 2022, Section 3.2; docs/estimator.md, "Regimes")."""
 
+    method: str = param(
+        "hmm",
+        "hmm: forward filter of a hidden Markov model over the four regimes on the acceleration each predicts "
+        "(causal, per sample); rule: the paper's per-sample thresholds (effort_tolerance, cruise_tolerance)",
+        choices=REGIME_METHODS,
+    )
     effort_tolerance: float = param(
-        0.025, "|effort| within this is coasting; above traction, below braking", unit="N/kg", low=0.0
+        0.025, "rule: |effort| within this is coasting; above traction, below braking", unit="N/kg", low=0.0
     )
     cruise_tolerance: float = param(
-        0.06, "traction or braking with |acceleration| within this is cruising", unit="m/s^2", low=0.0
+        0.06, "rule: traction or braking with |acceleration| within this is cruising", unit="m/s^2", low=0.0
     )
     standstill_speed: float = param(
         0.3, "when the speed is given: slower samples are UNKNOWN (standing; not a regime)", unit="m/s", low=0.0
     )
     hold_detection: bool = param(
         False,
-        "a sample in the coasting band whose acceleration is nearer 0 than the coasting deceleration (|a| < |effort|, "
-        "effort - a = r + g) is CRUISING: a speed hold whose effort r + g lies inside the band (low speed)",
+        "rule: a sample in the coasting band whose acceleration is nearer 0 than the coasting deceleration "
+        "(|a| < |effort|, effort - a = r + g) is CRUISING: a speed hold whose effort r + g lies inside the band "
+        "(low speed)",
     )
+    accel_noise_std: float = param(
+        0.025,
+        "hmm: standard deviation of the published acceleration about the value its regime predicts (10 s two-point "
+        "differences of speeds rounded to 1 km/h: 0.023)",
+        unit="m/s^2",
+        low=0.001,
+        high=1.0,
+    )
+    switch_probability: float = param(
+        0.1,
+        "hmm: prior probability that the regime changes between two consecutive samples (to any other alike)",
+        low=0.0,
+        high=0.75,
+        low_open=True,
+    )
+    traction_accel_mean: float = param(
+        0.07,
+        "hmm: mean net acceleration in traction (exponential prior: small values near the target speed, large at low "
+        "speed)",
+        unit="m/s^2",
+        low=0.001,
+        high=5.0,
+    )
+    traction_accel_min: float = param(
+        0.02,
+        "hmm: traction accelerates at least this much (the exponential prior starts here)",
+        unit="m/s^2",
+        low=0.0,
+        high=1.0,
+    )
+    brake_decel_min: float = param(0.1, "hmm: braking decelerates at least this much", unit="m/s^2", low=0.0, high=5.0)
+    brake_decel_max: float = param(1.0, "hmm: braking decelerates at most this much", unit="m/s^2", low=0.01, high=5.0)
+    known_coast_odds: float = param(
+        10.0,
+        "hmm: an effort of exactly 0 is the estimator's known coasting (u = 0 confirmed, effort_mode exploit_known): "
+        "it multiplies the odds of COASTING against each other regime by this (1: ignored)",
+        low=1.0,
+        high=1e6,
+    )
+    resistance_rel_std: float = param(
+        0.3,
+        "hmm: relative uncertainty of r + g (the coasting deceleration): adds (this x (r + g))^2 to the variance of "
+        "the COASTING prediction",
+        low=0.0,
+        high=2.0,
+    )
+    resistance_shape_speed: float = param(
+        20.0,
+        "hmm: r + g is carried over samples with a known zero effort as r(v) ~ v_c^2 + v^2 with this v_c "
+        "(sqrt(r0 / r2): VIRM 19, ICRm 26)",
+        unit="m/s",
+        low=0.1,
+        high=1000.0,
+    )
+
+    def validate(self, source: str = "parameters", prefix: str = "") -> None:
+        if not self.brake_decel_min < self.brake_decel_max:
+            raise ConfigError(
+                source, f"{prefix}brake_decel_max", f"must be greater than brake_decel_min ({self.brake_decel_min:g})"
+            )
 
 
 @dataclass(frozen=True)
@@ -272,20 +340,58 @@ class FeatureConfig(ParamSet):
         30.0, "cruising phases shorter than this are not listed in cruise_speeds", unit="s", low=0.0
     )
     phase_merge_gap: float = param(
-        20.0,
-        "final coast/brake: an interruption by another regime no longer than this is merged into the phase",
+        10.0,
+        "final coast/brake: an interruption by another regime no longer than this is merged into the phase (label "
+        "noise)",
         unit="s",
         low=0.0,
     )
     final_coast_min_duration: float = param(
-        30.0,
-        "final coast: the last coasting phase (after merging) lasting at least this long; shorter ones are transition "
-        "or noise fragments",
+        60.0,
+        "final coast: the last coasting phase (after merging) with at least this much time labelled coasting; shorter "
+        "ones are transition or noise fragments, or a low-speed hold before the stop brake read as coasting (the "
+        "papers' final coasts last 2.5-10 min)",
         unit="s",
         low=0.0,
     )
     final_brake_min_duration: float = param(
-        0.0, "final brake: the last braking phase (after merging) lasting at least this long", unit="s", low=0.0
+        0.0,
+        "final brake: the last braking phase (after merging) with at least this much time labelled braking",
+        unit="s",
+        low=0.0,
+    )
+    boundary_refinement: bool = param(
+        True,
+        "final coast/brake: locate the start and end of the phase between samples, at the break of a continuous "
+        "two-segment line fitted to the speed around the labelled change, and the end of the final brake where the "
+        "speed of its last samples extrapolates to zero (false: at the middle of the step where the label changes)",
+    )
+    boundary_window: float = param(
+        10.0,
+        "boundary refinement: speed samples used on each side of a change, at least three sample periods (longer "
+        "windows see the curvature of a coasting speed)",
+        unit="s",
+        low=0.0,
+        high=600.0,
+    )
+    boundary_search: float = param(
+        15.0,
+        "boundary refinement: the change is searched from this long (at least two sample periods) before the first "
+        "sample labelled with the new regime up to it (the recogniser's latency)",
+        unit="s",
+        low=0.0,
+        high=600.0,
+    )
+    hold_check_window: float = param(
+        120.0,
+        "final coast: the speeds of the last this-many seconds of a coasting phase are checked for a hold at its end "
+        "(a low-speed hold has its effort inside the coasting band: cut off, see boundary_refinement)",
+        unit="s",
+        low=0.0,
+        high=3600.0,
+    )
+    hold_check_min: float = param(
+        20.0, "final coast: a hold at its end is looked for when it lasts at least this long", unit="s", low=0.0
     )
     histogram_bins: int = param(10, "bins of the fleet histograms", low=1, high=1000)
 

@@ -14,14 +14,21 @@ effort over the step) and acceleration. Steps with v_mid below ``standstill_spee
 * cruise speeds: median filtered speed of each CRUISING phase lasting at least ``cruise_min_duration``;
   cruise_speed: the duration-weighted median over the samples of those phases.
 * regime time shares: step durations per regime over the run time.
-* final coast / final brake: duration and distance of the last COASTING / BRAKING phase seen so far that
-  lasted at least ``final_*_min_duration`` (a phase is a maximal run of steps of one regime; interruptions
-  up to ``phase_merge_gap`` are merged into it).
+* final brake / final coast (Cunillera 3.3: "the length of the final brake and of the previous coasting
+  phase"): duration and distance of the last BRAKING phase (the braking that ends at the stop) and of the
+  last COASTING phase (the coasting before it) seen so far. A phase is a maximal run of steps of one regime;
+  an interruption up to ``phase_merge_gap`` is merged into it (label noise), except that a coast is never
+  continued across braking; it counts when at least ``final_*_min_duration`` of it is labelled with its
+  regime. Its start and end are located between samples (``boundary_refinement``): at the break of a
+  continuous two-segment line fitted to the speed around the labelled change, searched up to
+  ``boundary_search`` before it (the recogniser's latency); the final brake ends where its last speeds
+  extrapolate to zero. The simulator's truth uses the same definitions on its exact phases.
 """
 
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -31,6 +38,9 @@ from .records import EstimateSample, EstimateSeries
 from .regimes import BRAKING, COASTING, CRUISING, TRACTION, UNKNOWN
 
 _NAN = math.nan
+_FINAL = (COASTING, BRAKING)
+_QUANT_VAR = (1.0 / 3.6) ** 2 / 12.0
+"""Variance of a speed rounded to 1 km/h, (m/s)^2: the floor of the speed noise in the hold test."""
 
 
 @dataclass
@@ -103,11 +113,325 @@ class _Moments:
         return self.mean, std, self.n
 
 
-class _Phase:
-    __slots__ = ("end_s", "end_t", "start_s", "start_t")
+class _Change:
+    """A change of regime into or out of a final-phase regime, located between two samples.
 
-    def __init__(self, t0: float, t1: float, s0: float, s1: float) -> None:
-        self.start_t, self.end_t, self.start_s, self.end_s = t0, t1, s0, s1
+    ``t_prev``: the last sample of the old regime; ``t_first``: the first of the new one. With
+    ``boundary_refinement`` the change is placed at the break of a continuous two-segment line fitted by
+    least squares to the speed samples within max(``boundary_window``, 3 dt) on each side, searched over
+    [t_first - max(boundary_search, 2 dt), t_first] (the recogniser reports a change up to a few samples
+    late); kind "stop": where the line through the last braking speeds reaches zero. Without refinement, or
+    with too few samples: the middle of the step.
+    """
+
+    __slots__ = ("_time", "closed", "kind", "lo", "pts", "s_stop", "standstill", "t_first", "t_prev", "until")
+
+    def __init__(self, kind: str, t_prev: float, t_first: float, pts: list, cfg: FeatureConfig) -> None:
+        self.kind, self.t_prev, self.t_first = kind, t_prev, t_first
+        self.pts = pts  # (t, s, v, acceleration) of the moving samples around the change
+        self.lo = t_first - max(cfg.boundary_search, 2.0 * (t_first - t_prev))
+        self.until = t_first + max(cfg.boundary_window, 3.0 * (t_first - t_prev))
+        self.closed = kind == "stop"
+        self.s_stop = _NAN
+        self.standstill = cfg.standstill_speed
+        self._time: float | None = None
+
+    def add(self, t: float, s: float, v: float, a: float) -> None:
+        if t <= self.until:
+            self.pts.append((t, s, v, a))
+        else:
+            self.closed = True
+
+    def time(self, refine: bool) -> float:
+        """Time of the change, s (cached once no more samples can change it)."""
+        if self._time is not None:
+            return self._time
+        mid = 0.5 * (self.t_prev + self.t_first)
+        if not refine:
+            out = mid
+        elif self.kind == "stop":
+            out = _stop_time(self.pts, self.t_prev, self.t_first, self.standstill)
+        else:
+            out = _break_time(self.pts, self.lo, self.t_first)
+            out = mid if out is None else out
+        if self.closed:
+            self._time = out
+        return out
+
+    def s_at(self, t: float) -> float:
+        """Position at time t (linear between the samples), m."""
+        if self.kind == "stop" and not math.isnan(self.s_stop):
+            return self.s_stop
+        ts = [p[0] for p in self.pts]
+        ss = [p[1] for p in self.pts]
+        return float(np.interp(t, ts, ss)) if ts else _NAN
+
+
+def _break_time(pts: list, lo: float, hi: float) -> float | None:
+    """Break of the continuous two-segment least-squares line through the speeds, searched in [lo, hi] (a grid
+    of 40 steps, then 40 around the best); at least two samples on each side, so the new phase needs two samples.
+    None otherwise (a one-sample phase leaves the break anywhere in its step)."""
+    if len(pts) < 4:
+        return None
+    arr = np.asarray(pts, dtype=float)
+    t0 = float(arr[:, 0].mean())
+    t, v = arr[:, 0] - t0, arr[:, 2]
+    lo, hi = max(lo - t0, float(t[1])), min(hi - t0, float(t[-1]))
+    if not hi > lo:
+        return None
+    if (t >= hi - 1e-9).sum() < 2:
+        return None
+    width = (hi - lo) / 40.0
+    best = _best_break(t, v, np.linspace(lo, hi, 41))
+    if best is None:
+        return None
+    fine = _best_break(t, v, np.linspace(max(lo, best - width), min(hi, best + width), 41))
+    return (fine if fine is not None else best) + t0
+
+
+def _best_break(t: np.ndarray, v: np.ndarray, grid: np.ndarray) -> float | None:
+    """The break in ``grid`` with the least residual sum of squares (basis 1, min(t - tau, 0), max(t - tau, 0))."""
+    d = t[None, :] - grid[:, None]
+    x1, x2 = np.minimum(d, 0.0), np.maximum(d, 0.0)
+    g = np.empty((grid.size, 3, 3))
+    g[:, 0, 0] = t.size
+    g[:, 0, 1] = g[:, 1, 0] = x1.sum(axis=1)
+    g[:, 0, 2] = g[:, 2, 0] = x2.sum(axis=1)
+    g[:, 1, 1] = (x1 * x1).sum(axis=1)
+    g[:, 1, 2] = g[:, 2, 1] = (x1 * x2).sum(axis=1)
+    g[:, 2, 2] = (x2 * x2).sum(axis=1)
+    b = np.stack([np.full(grid.size, v.sum()), x1 @ v, x2 @ v], axis=1)
+    ok = ((d < 0.0).sum(axis=1) >= 2) & ((d > 0.0).sum(axis=1) >= 2)
+    ok &= np.abs(np.linalg.det(g)) > 1e-12 * np.abs(g).max(axis=(1, 2)) ** 3
+    if not ok.any():
+        return None
+    coef = np.linalg.solve(g[ok], b[ok][..., None])[..., 0]
+    rss = float(v @ v) - (coef * b[ok]).sum(axis=1)
+    return float(grid[ok][int(np.argmin(rss))])
+
+
+def _stop_time(pts: list, t_prev: float, t_first: float, standstill: float) -> float:
+    """Where the speed of the braking reaches zero: the line through its last (up to four) moving samples, or through
+    the last one with its published acceleration; no earlier than the last moving sample and no later than t_first
+    plus the time to brake the standstill speed away (the first "standing" sample may still be rolling)."""
+    last = [p for p in pts if p[0] <= t_prev][-4:]
+    if not last:
+        return 0.5 * (t_prev + t_first)
+    t_last, v_last = last[-1][0], last[-1][2]
+    if len(last) >= 2:
+        slope = float(np.polyfit([p[0] - t_last for p in last], [p[2] for p in last], 1)[0])
+    else:
+        slope = float(last[-1][3])
+    if not slope < 0.0:
+        return 0.5 * (t_prev + t_first)
+    return min(max(t_last - v_last / slope, t_last), t_first - standstill / slope)
+
+
+class _Phase:
+    """A (merged) phase of one regime: start and end changes, the time labelled with the regime; for coasting the
+    samples of its last ``hold_check_window`` seconds (t, s, integrated acceleration) and the last r + g."""
+
+    __slots__ = ("end", "first_s", "first_t", "labelled", "last_s", "last_t", "start", "tail", "w_last")
+
+    def __init__(self, start: _Change | None, t0: float, s0: float) -> None:
+        self.start, self.end = start, None
+        self.first_t, self.first_s = t0, s0  # the first step's start (no change object: the run began in it)
+        self.last_t, self.last_s = t0, s0
+        self.labelled = 0.0
+        self.tail: deque[tuple[float, float, float]] = deque()
+        self.w_last = _NAN
+
+    def start_point(self, refine: bool) -> tuple[float, float]:
+        if self.start is None:
+            return self.first_t, self.first_s
+        t0 = self.start.time(refine)
+        return t0, self.start.s_at(t0)
+
+    def end_point(self, refine: bool) -> tuple[float, float]:
+        if self.end is None:
+            return self.last_t, self.last_s
+        t1 = self.end.time(refine)
+        return t1, self.end.s_at(t1)
+
+    def bounds(self, refine: bool) -> tuple[float, float]:
+        """(duration s, distance m) of the phase."""
+        (t0, s0), (t1, s1) = self.start_point(refine), self.end_point(refine)
+        return max(t1 - t0, 0.0), s1 - s0
+
+
+def _hold_tail(tail: deque, w: float, min_tail: float) -> float | None:
+    """Start of a speed hold that ends a labelled coasting phase (a low-speed hold has its effort r + g inside the
+    coasting band and may be labelled coasting), or None.
+
+    The tail speeds (the published accelerations integrated: the filtered speed follows the estimator's coasting
+    model where it takes the effort as a known zero) are fitted with a continuous line that turns flat at tau;
+    the part after tau (at least ``min_tail`` s, three samples) is a hold when its own slope is 100 times likelier
+    under a = 0 than under the coasting deceleration a = -w (w = r + g, 30 % uncertain).
+    """
+    if len(tail) < 5 or not w > 0.0:
+        return None
+    arr = np.asarray(tail, dtype=float)
+    t = arr[:, 0] - arr[-1, 0]
+    v = arr[:, 2]
+    best = None
+    for k in range(2, t.size - 2):
+        if t[-1] - t[k] < min_tail:
+            break
+        x = np.minimum(t - t[k], 0.0)
+        a = np.vstack([np.ones_like(x), x]).T
+        coef = np.linalg.lstsq(a, v, rcond=None)[0]
+        rss = float(((a @ coef - v) ** 2).sum())
+        if best is None or rss < best[0]:
+            best = (rss, k)
+    if best is None:
+        return None
+    k = best[1]
+    tt, vv = t[k:], v[k:]
+    sxx = float(((tt - tt.mean()) ** 2).sum())
+    if not sxx > 0.0:
+        return None
+    slope = float(((tt - tt.mean()) * (vv - vv.mean())).sum()) / sxx
+    resid = vv - vv.mean() - slope * (tt - tt.mean())
+    sigma2 = max(float(resid @ resid) / max(tt.size - 2, 1), _QUANT_VAR)  # the flat part's own scatter
+    var = sigma2 / sxx
+    var_c = var + (0.3 * w) ** 2
+    log_lr = 0.5 * ((slope + w) ** 2 / var_c - slope * slope / var) + 0.5 * math.log(var_c / var)
+    return float(arr[k, 0]) if log_lr > math.log(100.0) else None
+
+
+class _FinalPhases:
+    """The final coast and final brake of a run, per step (shared by the accumulator and the whole-run path).
+
+    Definitions (docs/estimator.md, "Final coast and final brake"): a phase is a maximal run of steps of one
+    regime, interruptions up to ``phase_merge_gap`` merged; the final brake is the last braking phase with at
+    least ``final_brake_min_duration`` labelled braking, ending at the stop; the final coast is the last
+    coasting phase with at least ``final_coast_min_duration`` labelled coasting (the coasting before the final
+    brake). Start and end are the located changes (``_Change``), the end of the final brake the stop.
+    """
+
+    __slots__ = ("_coasts", "_hist", "_last", "_open", "_span", "_u", "cfg", "final", "refine")
+
+    def __init__(self, cfg: FeatureConfig) -> None:
+        self.cfg = cfg
+        self.refine = cfg.boundary_refinement
+        self._span = cfg.boundary_window + cfg.boundary_search
+        self._hist: deque[tuple[float, ...]] = deque()  # (t, s, v, acceleration) of the recent moving samples
+        self._open: list[_Change] = []  # changes still collecting the samples after them
+        self._last: dict[int, _Phase | None] = {COASTING: None, BRAKING: None}
+        self.final: dict[int, _Phase | None] = {COASTING: None, BRAKING: None}
+        self._coasts: list[_Phase] = []  # the last coasting phases that qualified (the final one last)
+        self._u = 0.0  # speed change integrated from the published accelerations (the measured speeds at 10 s)
+
+    def step(
+        self,
+        t_prev: float,
+        s_prev: float,
+        r_prev: int,
+        t: float,
+        s: float,
+        v: float,
+        r: int,
+        dt: float,
+        accel: float,
+        w: float,
+    ) -> None:
+        """One step (t_prev, t] labelled r (UNKNOWN when standing) after one labelled r_prev; accel: its published
+        acceleration; w = r + g (effort - acceleration; NaN where the effort is a known zero)."""
+        cfg = self.cfg
+        if dt > 0.0 and math.isfinite(accel):
+            self._u += accel * dt
+        standing = not v >= cfg.standstill_speed
+        brake = self._last[BRAKING]
+        if brake is not None and brake.end is None and standing and BRAKING in (r, r_prev):
+            # the train stopped within this step (still labelled braking) or the last: the end of the braking
+            brake.end = self._change("stop", t_prev, t, s, brake)
+        elif r != r_prev and (r in _FINAL or r_prev in _FINAL):
+            ch = self._change("change", t_prev, t, s, None)
+            ph = self._last.get(r_prev)
+            if ph is not None and ph.end is None:
+                ph.end = ch
+            if r in _FINAL:
+                ph = self._last[r]
+                gap = t_prev - ph.last_t if ph is not None else math.inf
+                if gap <= cfg.phase_merge_gap + 1e-9 and not self._braked_since(ph, r):
+                    ph.end = None  # resumed after a short interruption
+                else:
+                    self._last[r] = _Phase(ch, t_prev, s_prev)
+        elif r in _FINAL and self._last[r] is None:
+            self._last[r] = _Phase(None, t_prev, s_prev)  # the first step of the run
+        if standing and r == BRAKING:
+            r = UNKNOWN  # the step the train stopped in: its braking ended at the stop located above
+        if r in _FINAL:
+            ph = self._last[r]
+            ph.last_t, ph.last_s = t, s
+            if dt > 0.0:
+                ph.labelled += dt
+            if r == COASTING:
+                ph.tail.append((t, s, self._u))
+                while ph.tail[0][0] < t - cfg.hold_check_window:
+                    ph.tail.popleft()
+                if math.isfinite(w):
+                    ph.w_last = w
+            minimum = cfg.final_coast_min_duration if r == COASTING else cfg.final_brake_min_duration
+            if ph.labelled >= minimum - 1e-9 and self.final[r] is not ph:
+                self.final[r] = ph
+                if r == COASTING:
+                    self._coasts = [*self._coasts[-2:], ph]
+        if v >= cfg.standstill_speed:
+            self._hist.append((t, s, v, accel))
+            for ch in self._open:
+                ch.add(t, s, v, accel)
+            self._open = [ch for ch in self._open if not ch.closed]
+        hist = self._hist
+        while hist and hist[0][0] < t - self._span - 5.0 * max(dt, 0.0):
+            hist.popleft()
+
+    def _change(self, kind: str, t_prev: float, t: float, s: float, brake: _Phase | None) -> _Change:
+        """A change between the samples at t_prev and t; it ends the collection of the open ones."""
+        cfg = self.cfg
+        span = max(cfg.boundary_search, 2.0 * (t - t_prev)) + max(cfg.boundary_window, 3.0 * (t - t_prev))
+        if brake is not None:  # stop: the speeds of the braking since its start
+            since = brake.start.time(self.refine) if brake.start is not None else brake.first_t
+            pts = [p for p in self._hist if p[0] >= since]
+        else:
+            pts = [p for p in self._hist if p[0] >= t - span]
+        ch = _Change(kind, t_prev, t, pts, cfg)
+        if kind == "stop":
+            ch.s_stop = s
+        for other in self._open:  # the phase after them ended: the line after a change fits that phase only
+            other.closed = True
+        self._open = [ch]
+        return ch
+
+    def _braked_since(self, ph: _Phase | None, r: int) -> bool:
+        """A coasting phase is not continued across braking (the coast before a brake is a different one)."""
+        brake = self._last[BRAKING]
+        return r == COASTING and ph is not None and brake is not None and brake.last_t > ph.last_t
+
+    def first(self, t: float, s: float, v: float) -> None:
+        """The first sample of the run."""
+        if v >= self.cfg.standstill_speed:
+            self._hist.append((t, s, v, 0.0))
+
+    def result(self, regime: int) -> tuple[float, float]:
+        """(duration s, distance m) of the final COASTING or BRAKING phase so far; NaN when there is none.
+
+        Final coast with ``boundary_refinement``: a hold at its end (``_hold_tail``) is cut off; a phase that is
+        then shorter than ``final_coast_min_duration`` was a hold, and the coasting phase before it is the final one.
+        """
+        if regime == BRAKING or not self.refine:
+            ph = self.final[regime]
+            return ph.bounds(self.refine) if ph is not None else (_NAN, _NAN)
+        cfg = self.cfg
+        for ph in reversed(self._coasts):
+            t_hold = _hold_tail(ph.tail, ph.w_last, cfg.hold_check_min)
+            if t_hold is None:
+                return ph.bounds(True)
+            t0, s0 = ph.start_point(True)
+            if t_hold - t0 >= cfg.final_coast_min_duration:
+                ts = [p[0] for p in ph.tail]
+                return t_hold - t0, float(np.interp(t_hold, ts, [p[1] for p in ph.tail])) - s0
+        return _NAN, _NAN
 
 
 def _fit(n: int, sv: float, su: float, svv: float, svu: float) -> tuple[float, float, float]:
@@ -161,10 +485,7 @@ class FeatureAccumulator:
         self._cruise_v: list[float] = []
         self._cruise_dt: list[float] = []
         self._cruise_start = 0.0
-        self._coast: _Phase | None = None
-        self._brake_phase: _Phase | None = None
-        self._final_coast: _Phase | None = None
-        self._final_brake: _Phase | None = None
+        self._final = _FinalPhases(self.config)
 
     def update(self, sample: EstimateSample, regime: int) -> bool:
         """Add one estimate with its regime; True when the regime changed (publish the features)."""
@@ -186,6 +507,7 @@ class FeatureAccumulator:
             self._run_id = run_id
             self._stamp, self._t0, self._t, self._s0, self._s, self._v = stamp, t, t, s, s, v
             self._regime = regime if v >= cfg.standstill_speed else UNKNOWN
+            self._final.first(t, s, v)
             return True
         dt = t - self._t
         t_prev, s_prev = self._t, self._s
@@ -212,23 +534,6 @@ class FeatureAccumulator:
                     i = self._step_index(v)
                     if i >= 0 and i == self._step_index(v - accel * max(w, dt)):
                         self._brake[i].add(-accel)
-            gap = cfg.phase_merge_gap
-            if regime == COASTING:
-                ph = self._coast
-                if ph is not None and t_prev - ph.end_t <= gap + 1e-9:
-                    ph.end_t, ph.end_s = t, s
-                else:
-                    self._coast = ph = _Phase(t_prev, t, s_prev, s)
-                if ph.end_t - ph.start_t >= cfg.final_coast_min_duration - 1e-9:
-                    self._final_coast = ph
-            elif regime == BRAKING:
-                ph = self._brake_phase
-                if ph is not None and t_prev - ph.end_t <= gap + 1e-9:
-                    ph.end_t, ph.end_s = t, s
-                else:
-                    self._brake_phase = ph = _Phase(t_prev, t, s_prev, s)
-                if ph.end_t - ph.start_t >= cfg.final_brake_min_duration - 1e-9:
-                    self._final_brake = ph
         # cruising phases (by sample)
         if regime == CRUISING:
             if self._regime != CRUISING:
@@ -237,6 +542,8 @@ class FeatureAccumulator:
             self._cruise_dt.append(max(dt, 0.0))
         elif self._regime == CRUISING:
             self._close_cruise(t_prev)
+        w = effort - accel if effort != 0.0 else _NAN
+        self._final.step(t_prev, s_prev, self._regime, t, s, v, regime, dt, accel, w)
         changed = regime != self._regime
         self._stamp, self._t, self._s, self._v, self._regime = stamp, t, s, v, regime
         return changed
@@ -280,12 +587,8 @@ class FeatureAccumulator:
             f.cruise_speed = _weighted_median(values, weights)
         total = sum(self._shares)
         f.regime_time_share = np.array(self._shares) / total if total > 0.0 else np.zeros(5)
-        if self._final_coast is not None:
-            f.final_coast_duration = self._final_coast.end_t - self._final_coast.start_t
-            f.final_coast_distance = self._final_coast.end_s - self._final_coast.start_s
-        if self._final_brake is not None:
-            f.final_brake_duration = self._final_brake.end_t - self._final_brake.start_t
-            f.final_brake_distance = self._final_brake.end_s - self._final_brake.start_s
+        f.final_coast_duration, f.final_coast_distance = self._final.result(COASTING)
+        f.final_brake_duration, f.final_brake_distance = self._final.result(BRAKING)
         return f
 
 
@@ -380,24 +683,19 @@ def extract_features(
     if cruise:
         values, weights = np.concatenate([c[1] for c in cruise]), np.concatenate([c[2] for c in cruise])
         f.cruise_speed = _weighted_median(values, weights)
-    for regime, attr, min_len in (
-        (COASTING, "coast", cfg.final_coast_min_duration),
-        (BRAKING, "brake", cfg.final_brake_min_duration),
-    ):
-        last = final = None
-        for a, b in phases:
-            if reg[a] != regime or not np.any(pos[a:b]):
-                continue
-            start_t, end_t, start_s, end_s = t_step0[a], t_step1[b - 1], s[a], s[b]
-            if last is not None and start_t - last[1] <= cfg.phase_merge_gap + 1e-9:
-                last = (last[0], end_t, last[2], end_s)
-            else:
-                last = (start_t, end_t, start_s, end_s)
-            if last[1] - last[0] >= min_len - 1e-9:
-                final = last
-        if final is not None:
-            setattr(f, f"final_{attr}_duration", float(final[1] - final[0]))
-            setattr(f, f"final_{attr}_distance", float(final[3] - final[2]))
+    # final coast and brake: the per-step tracker of the accumulator (phase changes located on the speed)
+    final = _FinalPhases(cfg)
+    tl, sl, vl, rl = t.tolist(), s.tolist(), v.tolist(), reg.tolist()
+    dtl = dt.tolist()
+    al = estimates.acceleration.tolist()
+    wl = np.where(estimates.effort != 0.0, estimates.effort - estimates.acceleration, np.nan).tolist()
+    final.first(tl[0], sl[0], vl[0])
+    r_prev = int(first)
+    for k in range(1, n):
+        final.step(tl[k - 1], sl[k - 1], r_prev, tl[k], sl[k], vl[k], rl[k - 1], dtl[k - 1], al[k], wl[k])
+        r_prev = rl[k - 1]
+    f.final_coast_duration, f.final_coast_distance = final.result(COASTING)
+    f.final_brake_duration, f.final_brake_distance = final.result(BRAKING)
     return f
 
 

@@ -4,7 +4,8 @@ State (s, v) over time t. The driver follows the target speed theta * limit-over
 style of :class:`~.driver.DriverParams`; every switch is an event located on the dense output:
 
     departure:  brakes hold until the ramped traction exceeds r0 + g, then RAMP -> TRACTION
-    at target:  HOLD (hold style) or COAST down by the band, TRACTION back (cycles style)
+    at target:  HOLD (hold style) or COAST down by the band, TRACTION back (cycles style: at least
+                cycle_min_accel net where the re-acceleration starts, up to the full envelope)
     ceiling up: ramped re-acceleration (tail clear of the lower limit)
     braking:    where s + D(v) reaches a lower limit (D through the ATB-EG steps, b_limit per step)
                 or the stop (b_stop; the stop brake is the closed loop v^2 / 2d, exact to the metre)
@@ -149,6 +150,14 @@ class Drive:
             return Ramp(self.model, t, self.driver.reaccel_ramp_s, u0, fraction)
         return Traction(self.model, fraction)
 
+    def cycle_fraction(self, t: float, s: float, v: float) -> float:
+        """Fraction of the envelope for a cycle's re-acceleration: the driver's, raised (up to the full envelope)
+        so that the net acceleration where it starts is at least ``cycle_min_accel``."""
+        m = self.model
+        env = m.envelope(v)
+        need = (m.opposing(t, s, v) + self.driver.cycle_min_accel) / env if env > 0.0 else 1.0
+        return max(self.driver.cycle_traction_fraction, min(1.0, need))
+
     def brake_for(self, j: int, s: float, v: float) -> Phase:
         tg = self.targets[j]
         if tg.kind == "stop":
@@ -194,7 +203,7 @@ class Drive:
             if v > c + 1e-9:
                 return Hold(m)
             if not ph.final and v <= c - self.band:
-                return self.reaccel(t, 0.0, self.driver.cycle_traction_fraction)
+                return self.reaccel(t, 0.0, self.cycle_fraction(t, s, v))
             if ph.final and v < self.min_coast:
                 self.creep = True
                 return self.reaccel(t, 0.0, self.driver.traction_fraction)
@@ -257,7 +266,7 @@ class Drive:
         if tag == "overspeed":
             return Hold(m)
         if tag == "band_low":
-            return self.reaccel(t, 0.0, self.driver.cycle_traction_fraction)
+            return self.reaccel(t, 0.0, self.cycle_fraction(t, s, v))
         if tag == "min_speed":
             self.creep = True
             return self.reaccel(t, 0.0, self.driver.traction_fraction)

@@ -3,7 +3,10 @@
 Ranges (documented in docs/simulator.md):
 - cruise speed theta * limit, theta 0.8-1.02: most runs at the limit, 12 % above it (Cunillera
   et al. 2022, Fig. 7 left), some at 80 % (Besinovic et al. 2013, Fig. 9b, Table 4);
-- cruising style: holding the speed, or traction/coast cycles around the target (Cunillera Fig. 3);
+- cruising style: holding the speed, or traction/coast cycles below the target (Cunillera Fig. 3: brief
+  re-accelerations, coasting while above the target): coast from the target down by a band of 6-15 km/h
+  (20-50 s of coasting at 140 km/h, longer at lower speed), then re-accelerate at 0.8-1.0 of the envelope
+  and at least ``cycle_min_accel`` net (a re-acceleration that really accelerates);
 - coasting before the final brake, 2.5-10 min on the 32 km corridor (Cunillera Fig. 7 centre);
 - braking to lower limits with b_limit 0.24-0.9 m/s^2 (Besinovic Table 4), per ATB-EG speed step
   (>130, 130-80, 80-60, 60-40, 40-0 km/h), higher at lower speed, the steps above 80 km/h and
@@ -41,9 +44,17 @@ class DriverParams(ParamSet):
         "hold", "cruising: hold the speed, or traction/coast cycles below the target", choices=("hold", "cycles")
     )
     cycle_band_kmh: float = param(
-        4.0, "cycles: coast from the target down by this much, then traction", unit="km/h", low=0.2, high=40.0
+        8.0, "cycles: coast from the target down by this much, then traction", unit="km/h", low=0.2, high=40.0
     )
-    cycle_traction_fraction: float = param(0.5, "cycles: traction as a fraction of the envelope", low=0.05, high=1.2)
+    cycle_traction_fraction: float = param(0.9, "cycles: traction as a fraction of the envelope", low=0.05, high=1.2)
+    cycle_min_accel: float = param(
+        0.05,
+        "cycles: the re-acceleration uses at least the fraction of the envelope that gives this net acceleration "
+        "where it starts (capped at the full envelope)",
+        unit="m/s^2",
+        low=0.0,
+        high=2.0,
+    )
     traction_fraction: float = param(1.0, "traction as a fraction of the tractive envelope", low=0.05, high=1.2)
     start_ramp_s: float = param(0.0, "departure: time to ramp traction up from zero", unit="s", low=0.0, high=300.0)
     reaccel_ramp_s: float = param(0.0, "re-acceleration: time to ramp traction up", unit="s", low=0.0, high=300.0)
@@ -138,8 +149,8 @@ class DriverParams(ParamSet):
         values = dict(
             theta_cruise=float(theta),
             cruise_style=style,
-            cycle_band_kmh=float(rng.uniform(2.0, 6.0)),
-            cycle_traction_fraction=float(rng.uniform(0.3, 0.7)),
+            cycle_band_kmh=float(rng.uniform(6.0, 15.0)),
+            cycle_traction_fraction=float(rng.uniform(0.8, 1.0)),
             traction_fraction=float(rng.uniform(0.75, 1.0)),
             start_ramp_s=float(rng.uniform(4.0, 20.0)),
             reaccel_ramp_s=float(rng.uniform(3.0, 15.0)),

@@ -1,9 +1,20 @@
 """Driver phases: the applied effort u (N/kg) and acceleration of each, and the regime label.
 
 Each phase is smooth in (t, s, v) so the integrator never steps over a switch; every switch is an
-event. The truth label of a sample is the phase's regime (the driver's intent): traction/coast
-cycles are labelled traction and coasting, as in Cunillera et al. (2022) Fig. 6; holding a speed
-is cruising even where the holding effort is a brake (downhill); standing is UNKNOWN.
+event. The truth label of an instant is the phase the driver is in (what the driver does): traction
+(ramps included, and traction that cannot quite hold the speed uphill), a speed hold (cruising, even
+where the holding effort is a brake downhill), coasting (u = 0) or braking; standing is UNKNOWN.
+Traction/coast cycles are labelled traction and coasting: they are what the train does, and the
+recogniser's job (Cunillera et al. 2022, Fig. 6 shows its short traction and coasting phases along
+the cycles). A row of the truth CSV carries the label at its stamp.
+
+Final phases (the truth JSON summary, ``final_coast_s`` / ``final_brake_s``; Cunillera 3.3: "the
+length of the final brake and of the previous coasting phase"): the final brake is the last braking
+phase, the one that ends at the stop (a limit brake directly followed by the stop brake is one
+phase); the final coast is the last coasting phase before it. Where the run ends brake -> hold at a
+lower limit -> stop brake, the final brake is the stop brake and the final coast the coasting before
+the first of those brakes. The feature extraction estimates the same quantities
+(train_calib.estimation.features).
 """
 
 from __future__ import annotations
