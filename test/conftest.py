@@ -13,9 +13,7 @@ import tempfile
 from pathlib import Path
 
 import pytest
-
-REPO = Path(__file__).resolve().parent.parent
-DATA = Path(__file__).resolve().parent / "data"
+from repo_paths import DATA
 
 _DOMAIN_LOCK = None
 

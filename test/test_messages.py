@@ -9,8 +9,8 @@ import time
 from pathlib import Path
 
 import pytest
-from conftest import REPO
 from msgfill import fill, message_class, to_dict
+from repo_paths import REPO
 
 pytestmark = pytest.mark.ros
 

@@ -9,7 +9,7 @@ from importlib import metadata
 from pathlib import Path
 
 import pytest
-from conftest import REPO
+from repo_paths import REPO
 
 REQUIRED_DEPENDS = {"rclpy", "std_msgs", "sensor_msgs", "geometry_msgs", "diagnostic_msgs", "train_calib_msgs"}
 REQUIRED_EXEC = {"python3-numpy", "python3-scipy"}

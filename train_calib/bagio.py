@@ -159,21 +159,53 @@ def mcap_files(path: str | Path) -> list[Path]:
     return files
 
 
-def bag_topics(path: str | Path) -> dict[str, str]:
-    """Topic -> message type of every channel in the bag."""
+class BagDamage(BagError):
+    """A damaged MCAP file: every readable message was delivered before this was raised.
+
+    ``messages``: how many messages were read from the damaged file; ``detail``: what was wrong.
+    """
+
+    def __init__(self, file: Path, detail: str, messages: int) -> None:
+        self.file, self.detail, self.messages = file, detail, messages
+        super().__init__(f"{file}: damaged MCAP ({detail}); {messages} messages were read")
+
+
+def _summary(stream: Any) -> Any:
+    """The MCAP summary, or None when the file has none or its end is damaged (truncated)."""
     from mcap.reader import make_reader
+
+    try:
+        return make_reader(stream).get_summary()
+    except Exception:
+        return None
+
+
+def _open(file: Path) -> Any:
+    try:
+        return open(file, "rb")
+    except OSError as exc:
+        raise BagError(f"{file}: cannot open: {exc.strerror or exc}") from None
+
+
+def bag_topics(path: str | Path) -> dict[str, str]:
+    """Topic -> message type of every channel in the bag (of a damaged file: the channels that can be read)."""
+    from .mcap_salvage import salvage_file
 
     topics: dict[str, str] = {}
     for file in mcap_files(path):
-        try:
-            with open(file, "rb") as stream:
-                summary = make_reader(stream).get_summary()
-        except Exception as exc:
-            raise BagError(f"{file}: not a readable MCAP file: {exc}") from None
-        if summary is None:
-            raise BagError(f"{file}: MCAP file has no summary (truncated?)")
-        for channel in summary.channels.values():
-            schema = summary.schemas.get(channel.schema_id)
+        with _open(file) as stream:
+            summary = _summary(stream)
+            if summary is not None:
+                schemas, channels = summary.schemas, summary.channels
+            else:
+                stream.seek(0)
+                salvaged = salvage_file(stream.read())
+                schemas, channels = salvaged.schemas, salvaged.channels
+                if not channels:
+                    problem = salvaged.damage[0] if salvaged.damage else "no channels"
+                    raise BagError(f"{file}: not a readable MCAP file ({problem})")
+        for channel in channels.values():
+            schema = schemas.get(channel.schema_id)
             topics[channel.topic] = schema.name if schema else ""
     return topics
 
@@ -181,27 +213,86 @@ def bag_topics(path: str | Path) -> dict[str, str]:
 def iter_bag(path: str | Path, topics: Iterable[str] | None = None) -> Iterator[BagMessage]:
     """Messages of the bag in log-time order, optionally only of some topics.
 
-    A damaged file yields every message before the damage, then raises BagError naming the file.
+    A damaged file is salvaged (:mod:`train_calib.mcap_salvage`): with its summary readable, a damaged chunk
+    is read as far as its records parse and the others normally; without a summary (a truncated recording)
+    the records are read up to where the file ends. Every readable message is yielded, then
+    :class:`BagDamage` (a BagError) names the file and the damage.
     """
-    from mcap.reader import make_reader
-
     wanted = set(topics) if topics is not None else None
     for file in mcap_files(path):
-        try:
-            stream = open(file, "rb")  # noqa: SIM115 - closed by the with below, after the error mapping
-        except OSError as exc:
-            raise BagError(f"{file}: cannot open: {exc.strerror or exc}") from None
-        with stream:
+        with _open(file) as stream:
+            damage: list[str] = []
+            count = 0
+            summary = _summary(stream)
+            if summary is not None and summary.chunk_indexes:
+                messages = _indexed_messages(stream, summary, wanted, damage)
+            else:
+                messages = _salvaged_messages(stream, wanted, damage)
+            for message in messages:
+                count += 1
+                yield message
+            if damage:
+                if count == 0 and summary is None:
+                    raise BagError(f"{file}: not a readable MCAP file ({damage[0]})")
+                raise BagDamage(file, "; ".join(damage), count)
+
+
+def _indexed_messages(stream: Any, summary: Any, wanted: set[str] | None, damage: list[str]) -> Iterator[BagMessage]:
+    """Chunk by chunk through the summary's chunk index, merged in log-time order (a damaged chunk salvaged)."""
+    import heapq
+
+    from mcap.data_stream import ReadDataStream
+    from mcap.records import Chunk, Message
+    from mcap.stream_reader import breakup_chunk
+
+    from .mcap_salvage import Salvaged, salvage_chunk
+
+    channels = summary.channels
+    chunks = sorted(summary.chunk_indexes, key=lambda c: (c.message_start_time, c.chunk_start_offset))
+    heap: list[tuple[int, int, int, Any]] = []
+    i = 0
+    order = 0
+    while i < len(chunks) or heap:
+        while i < len(chunks) and (not heap or chunks[i].message_start_time <= heap[0][0]):
+            index = chunks[i]
+            i += 1
             try:
-                reader = make_reader(stream)
-                for schema, channel, message in reader.iter_messages(
-                    topics=list(wanted) if wanted is not None else None, log_time_order=True
-                ):
-                    yield BagMessage(channel.topic, schema.name if schema else "", message.log_time, message.data)
-            except BagError:
-                raise
-            except Exception as exc:
-                raise BagError(f"{file}: corrupt or truncated MCAP ({exc.__class__.__name__}: {exc})") from None
+                stream.seek(index.chunk_start_offset + 1 + 8)
+                records = list(breakup_chunk(Chunk.read(ReadDataStream(stream)), validate_crc=True))
+            except Exception:
+                stream.seek(index.chunk_start_offset + 1 + 8)
+                salvaged = Salvaged()
+                salvage_chunk(
+                    stream.read(max(index.chunk_length - 9, 0)), salvaged, f"chunk at byte {index.chunk_start_offset}"
+                )
+                damage.extend(salvaged.damage)
+                records = salvaged.messages
+            for record in records:
+                channel = channels.get(record.channel_id) if isinstance(record, Message) else None
+                if channel is not None and (wanted is None or channel.topic in wanted):
+                    heapq.heappush(heap, (record.log_time, index.chunk_start_offset, order, record))
+                    order += 1
+        if heap:
+            _, _, _, record = heapq.heappop(heap)
+            channel = channels[record.channel_id]
+            schema = summary.schemas.get(channel.schema_id)
+            yield BagMessage(channel.topic, schema.name if schema else "", record.log_time, record.data)
+
+
+def _salvaged_messages(stream: Any, wanted: set[str] | None, damage: list[str]) -> Iterator[BagMessage]:
+    """No usable summary (a truncated recording): every record that can be framed, in log-time order."""
+    from .mcap_salvage import salvage_file
+
+    stream.seek(0)
+    salvaged = salvage_file(stream.read())
+    damage.extend(salvaged.damage)
+    records = sorted(salvaged.messages, key=lambda m: m.log_time)  # stable: file order at equal times
+    for record in records:
+        channel = salvaged.channels.get(record.channel_id)
+        if channel is None or (wanted is not None and channel.topic not in wanted):
+            continue
+        schema = salvaged.schemas.get(channel.schema_id)
+        yield BagMessage(channel.topic, schema.name if schema else "", record.log_time, record.data)
 
 
 def bag_name(path: str | Path) -> str:
@@ -222,6 +313,7 @@ __all__ = [
     "OUTPUT_TOPICS",
     "POWER_TOPIC",
     "SPEED_TOPIC",
+    "BagDamage",
     "BagMessage",
     "BagWriter",
     "bag_name",

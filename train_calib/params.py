@@ -173,7 +173,8 @@ def _coerce(spec: ParamSpec, value: Any) -> tuple[Any, str | None]:
             return value, f"{value!r} is not one of {', '.join(spec.choices)}"
         return value, None
     if spec.kind is tuple:
-        if isinstance(value, (str, bytes)) or not isinstance(value, (Sequence, tuple)) and not hasattr(value, "tolist"):
+        not_a_list = not isinstance(value, (Sequence, tuple)) and not hasattr(value, "tolist")
+        if isinstance(value, (str, bytes)) or not_a_list:
             return value, f"expected a list of numbers, found {type(value).__name__}"
         items = list(value.tolist() if hasattr(value, "tolist") else value)
         out = []

@@ -8,7 +8,7 @@ import math
 
 import numpy as np
 import pytest
-from conftest import synthetic_run
+from estimation_cases import synthetic_run
 from synthetic import Script, integrate, sample, virm_like_train
 
 from train_calib.estimation import (

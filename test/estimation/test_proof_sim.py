@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from conftest import simulated_run, wrong_prior
+from estimation_cases import simulated_run, wrong_prior
 
 from train_calib.estimation import (
     EstimateSeries,

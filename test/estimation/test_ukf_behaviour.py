@@ -7,7 +7,7 @@ import math
 
 import numpy as np
 import pytest
-from conftest import synthetic_run, wrong_prior
+from estimation_cases import synthetic_run, wrong_prior
 from synthetic import add_power
 
 from train_calib.errors import ConfigError

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from conftest import synthetic_run, wrong_prior
+from estimation_cases import synthetic_run, wrong_prior
 from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter
 
 from train_calib.estimation import UKFConfig, estimate_run, smooth_run

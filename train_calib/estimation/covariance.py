@@ -89,15 +89,23 @@ def repair(p: tuple[float, ...], min_eigenvalue: float) -> tuple[float, ...] | N
     return pack(fixed)
 
 
-def project_nonnegative(x: list[float], p: tuple[float, ...], indices: tuple[int, ...], rule: str) -> bool:
+def project_nonnegative(
+    x: list[float], p: tuple[float, ...], indices: tuple[int, ...], rule: str, clip_only: tuple[int, ...] = ()
+) -> bool:
     """Make x[i] >= 0 for i in ``indices`` in place; True when something was changed.
 
     ``project``: the covariance-weighted projection of the mean onto the active bounds
     (Simon & Chia 2002, estimate projection: x <- x - P_:A P_AA^-1 x_A for the active set A), repeated
     while new bounds become active, then a final clip; ``clip``: x_i <- max(x_i, 0). P is left unchanged.
+    Indices in ``clip_only`` are always clipped, never projected: their bound moves no other state (the
+    speed at a standstill: its noise around 0 would otherwise leak into r through the correlations).
     """
     if all(x[i] >= 0.0 for i in indices):
         return False
+    for i in clip_only:
+        if x[i] < 0.0:
+            x[i] = 0.0
+    indices = tuple(i for i in indices if i not in clip_only)
     if rule == "project":
         m = unpack(p)
         xv = np.array(x, dtype=float)

@@ -9,6 +9,7 @@ from ..train import Davis, TrainSpec
 from .config import UKFConfig
 from .covariance import UPPER_INDEX, cholesky, unpack
 from .records import HEALTH_RESET, EstimateSeries
+from .safeguards import SafeguardConfig
 from .ukf import ResistanceEstimator
 
 
@@ -18,13 +19,14 @@ def estimate_run(
     config: UKFConfig | None = None,
     initial: Davis | None = None,
     estimator: ResistanceEstimator | None = None,
+    safeguards: SafeguardConfig | None = None,
 ) -> EstimateSeries:
     """Run the UKF over every sample; identical numbers to ``ResistanceEstimator.update`` per sample.
 
     ``estimator`` continues an existing filter (its config and state); otherwise a new one is made.
     Several run_ids in the series are handled as the node does (``carry_over``).
     """
-    est = estimator if estimator is not None else ResistanceEstimator(train, config, initial)
+    est = estimator if estimator is not None else ResistanceEstimator(train, config, initial, safeguards)
     n = len(series)
     out = EstimateSeries.empty(n)
     packed = np.empty((n, 15))

@@ -37,8 +37,17 @@ from .config import UKFConfig
 from .covariance import cholesky, project_nonnegative, repair, unpack
 from .effort import PowerEffort, SpeedSlope
 from .records import HEALTH_DEGRADED, HEALTH_OK, HEALTH_REPAIRED, HEALTH_RESET, EstimateSample
+from .safeguards import SafeguardConfig
 
 _NONNEG = (1, 2, 3, 4)  # v, r0, r1, r2
+# inputs beyond these are not measurements of a train (a corrupt message): rejected or repaired, never used
+MAX_SPEED = 200.0  # m/s (720 km/h)
+MAX_TRACK_FORCE = 5.0  # N/kg (a 50 % gradient)
+MAX_POSITION = 1.0e7  # m along the track
+MAX_POWER = 1.0e9  # W
+VARIANCE_RANGE = (1e-12, 1e12)  # m^2 or (m/s)^2
+_CLIP_ONLY = (1,)  # v >= 0 is clipped: a speed below 0 says nothing about r (standstill noise would move it)
+RELOCK_COUNT = 3  # gated positions in a row (besides gate_relock_time) before s is re-initialised there
 
 
 class ResistanceEstimator:
@@ -46,11 +55,19 @@ class ResistanceEstimator:
 
     ``update(m)`` once per measurement (variable dt from the stamps); a new ``run_id`` starts a new
     run (``carry_over``). Never returns NaN or a negative r. Counters for diagnostics: ``counters``.
+    ``safeguards``: the position gate and the recovery rules (:class:`SafeguardConfig`, docs/reliability.md).
     """
 
-    def __init__(self, train: TrainSpec, config: UKFConfig | None = None, initial: Davis | None = None) -> None:
+    def __init__(
+        self,
+        train: TrainSpec,
+        config: UKFConfig | None = None,
+        initial: Davis | None = None,
+        safeguards: SafeguardConfig | None = None,
+    ) -> None:
         self.train = train
         self.config = cfg = config if config is not None else UKFConfig()
+        self.safeguards = guard = safeguards if safeguards is not None else SafeguardConfig()
         self.prior = initial if initial is not None else train.davis
         if min(self.prior.as_tuple()) < 0.0 or not all(math.isfinite(x) for x in self.prior.as_tuple()):
             raise ValueError(f"initial resistance must be finite and >= 0, found {self.prior}")
@@ -76,6 +93,10 @@ class ResistanceEstimator:
         dofs = np.arange(0, 2 * nw + 1)
         self._nis_limit = [math.inf] + [float(x) for x in chi2.ppf(cfg.nis_quantile, dofs[1:])]
         self._gate = float(chi2.ppf(cfg.known_effort_gate, 1)) if cfg.known_effort_gate < 1.0 else math.inf
+        self._position_gate = float(chi2.ppf(guard.position_gate, 1)) if guard.position_gate < 1.0 else math.inf
+        self._relock_ns = int(guard.gate_relock_time * 1e9)
+        self._gate_accel = guard.gate_accel_std
+        self._nis_reset_steps = guard.nis_reset_windows * cfg.nis_window
         self.counters: dict[str, int] = {
             "updates": 0,
             "runs": 0,
@@ -91,7 +112,12 @@ class ResistanceEstimator:
             "nonpositive_dt": 0,
             "invalid_input": 0,
             "position_missing": 0,
+            "input_repaired": 0,
+            "position_gated": 0,
+            "position_relocks": 0,
+            "nis_resets": 0,
         }
+        self.rejected: str | None = None  # why the latest measurement was not used (None: it was)
         self._x: list[float] | None = None
         self._P: tuple[float, ...] = ()
         self._L: tuple[float, ...] = ()
@@ -176,6 +202,9 @@ class ResistanceEstimator:
         self._nis_ring: list[tuple[float, int]] = []
         self._nis_sum = 0.0
         self._nis_dof = 0
+        self._degraded_steps = 0  # consecutive DEGRADED steps (NIS recovery rule)
+        self._gated_since: int | None = None  # stamp of the first position gated in a row (relock rule)
+        self._gated_count = 0
 
     def _initial_cov(self, r: tuple[float, float, float]) -> list[float]:
         cfg = self.config
@@ -236,13 +265,29 @@ class ResistanceEstimator:
         cfg = self.config
         self.counters["updates"] += 1
         health = HEALTH_OK
-        if not (math.isfinite(zv) and zv >= 0.0 and math.isfinite(g)) or (
-            self._x is not None and run_id == self._run_id and stamp_ns < self._last_stamp
-        ):
+        self.rejected = None
+        if not (math.isfinite(zv) and math.isfinite(g)):
+            self.rejected = "nan"
+        elif zv < 0.0:
+            self.rejected = "negative_speed"
+        elif zv > MAX_SPEED or abs(g) > MAX_TRACK_FORCE:
+            self.rejected = "implausible"
+        elif self._x is not None and run_id == self._run_id and stamp_ns < self._last_stamp:
+            self.rejected = "out_of_order"
+        if self.rejected is not None:
             return self._rejected(stamp_ns)
-        if not math.isfinite(zs):
+        if not abs(zs) <= MAX_POSITION:  # NaN too: no position, a speed-only update
+            if math.isfinite(zs):
+                self.counters["input_repaired"] += 1
             s_measured = False
             zs = self._x[0] if self._x is not None and run_id == self._run_id else 0.0
+        if not (VARIANCE_RANGE[0] <= s_var <= VARIANCE_RANGE[1] and VARIANCE_RANGE[0] <= v_var <= VARIANCE_RANGE[1]):
+            self.counters["input_repaired"] += 1  # a variance the filter cannot use: the configured one
+            s_var = s_var if VARIANCE_RANGE[0] <= s_var <= VARIANCE_RANGE[1] else self._rs
+            v_var = v_var if VARIANCE_RANGE[0] <= v_var <= VARIANCE_RANGE[1] else self._rv
+        if power_valid and not (0.0 <= power_consumed <= MAX_POWER and 0.0 <= power_regen <= MAX_POWER):
+            self.counters["input_repaired"] += 1  # power that is not a power is no power measurement
+            power_valid, power_consumed, power_regen = False, 0.0, 0.0
         # ---- run start / gap --------------------------------------------------------------------
         if self._x is None or run_id != self._run_id:
             keep = self._x is not None and (self._keep_next or cfg.carry_over == "keep")
@@ -347,23 +392,34 @@ class ResistanceEstimator:
             rs, rv = self._rs, self._rv
         if not s_measured:
             self.counters["position_missing"] += 1
+        gated_nis = 0.0
+        if s_measured:
+            s_measured, health, gated_nis = self._gate_position(stamp_ns, zs, rs, dt, health)
         nis, dof = self._update(zs, zv, rs, rv, s_measured, dt, decoupled)
+        if gated_nis:  # a gated position is an inconsistent innovation: it counts in the NIS window
+            nis, dof = nis + gated_nis, dof + 1
         # ---- safeguards -------------------------------------------------------------------------------
         x = self._x
         if not math.isfinite(sum(x) + sum(self._P) + nis):  # NaN or inf anywhere
             health = self._hard_reset(zs, zv)
             nis, dof = 0.0, 0
         else:
-            if project_nonnegative(x, self._P, _NONNEG, cfg.nonnegative):
+            if project_nonnegative(x, self._P, _NONNEG, cfg.nonnegative, clip_only=_CLIP_ONLY):
                 self.counters["projections"] += 1
             flag = self._set_cov(self._P)
             if flag == HEALTH_RESET:
                 health = self._hard_reset(zs, zv)
             elif flag == HEALTH_REPAIRED:
                 health = HEALTH_REPAIRED
-        if self._nis_push(nis, dof) and health == HEALTH_OK:
-            health = HEALTH_DEGRADED
-            self.counters["degraded"] += 1
+        if self._nis_push(nis, dof):
+            self._degraded_steps += 1
+            if self._nis_reset_steps and self._degraded_steps >= self._nis_reset_steps:
+                health = self._nis_reset(zs, zv)
+            elif health == HEALTH_OK:
+                health = HEALTH_DEGRADED
+                self.counters["degraded"] += 1
+        else:
+            self._degraded_steps = 0
         self._last_stamp = stamp_ns
         self._zv_prev = zv
         self._g_prev = g
@@ -371,6 +427,10 @@ class ResistanceEstimator:
         x = self._x
         vf = x[1]
         resistance = x[2] + (x[3] + x[4] * vf) * vf
+        if not math.isfinite(effort + a_obs + u):  # the step that needed a reset: the effort of the restarted state
+            a_obs = a_obs if math.isfinite(a_obs) else 0.0
+            effort = u = a_obs + resistance + g
+            self._last_effort, self._last_accel, self._last_input = effort, a_obs, u
         return (x[0], vf, x[2], x[3], x[4], effort, a_obs, resistance, g, nis, known, health, dt, u, decoupled)
 
     def _first_sample(self, stamp_ns, zv, g, power_valid, pc, pr, health) -> tuple:
@@ -413,10 +473,57 @@ class ResistanceEstimator:
             False,
         )
 
-    def _hard_reset(self, zs: float, zv: float) -> int:
-        """Invalid state or covariance: restart at the measurement from the prior (Table 1 covariance)."""
+    def _gate_position(self, stamp_ns: int, zs: float, rs: float, dt: float, health: int) -> tuple[bool, int, float]:
+        """Position gate: (use the position, health, NIS of a gated position). An innovation beyond the
+        ``position_gate`` quantile of its predicted variance is left out (speed-only update); gated for
+        ``gate_relock_time`` and at least RELOCK_COUNT measurements in a row, s is re-initialised at the
+        measurement (its covariance row reset: variance rs, no correlation): health RESET."""
+        nu = zs - self._x[0]
+        model = self._gate_accel * 0.5 * dt * dt
+        var = self._P[0] + rs + model * model
+        if nu * nu <= self._position_gate * var:
+            self._gated_since = None
+            self._gated_count = 0
+            return True, health, 0.0
+        if self._gated_since is None:
+            self._gated_since = stamp_ns
+            self._gated_count = 0
+        self._gated_count += 1
+        if stamp_ns - self._gated_since < self._relock_ns or self._gated_count < RELOCK_COUNT:
+            self.counters["position_gated"] += 1
+            return False, health, nu * nu / var
+        self._gated_since = None
+        self._gated_count = 0
+        self.counters["position_relocks"] += 1
         self.counters["resets"] += 1
-        self._initialise(zs, zv, False)
+        self._x[0] = zs
+        p = list(self._P)
+        p[0], p[1], p[2], p[3], p[4] = rs, 0.0, 0.0, 0.0, 0.0
+        self._P = tuple(p)
+        return True, HEALTH_RESET, 0.0
+
+    def _nis_reset(self, zs: float, zv: float) -> int:
+        """The innovations stayed inconsistent for ``nis_reset_windows`` NIS windows: s and v restart at the
+        measurement with their initial covariance; r and its covariance block are kept (no cross terms)."""
+        cfg = self.config
+        self.counters["nis_resets"] += 1
+        self.counters["resets"] += 1
+        self._x[0], self._x[1] = zs, max(zv, 0.0)
+        p = list(self._P)
+        p[0:9] = [cfg.init_std_s**2, 0.0, 0.0, 0.0, 0.0, cfg.init_std_v**2, 0.0, 0.0, 0.0]
+        if self._set_cov(tuple(p)) == HEALTH_RESET:
+            return self._hard_reset(zs, zv)
+        self._nis_ring.clear()
+        self._nis_sum = 0.0
+        self._nis_dof = 0
+        self._degraded_steps = 0
+        return HEALTH_RESET
+
+    def _hard_reset(self, zs: float, zv: float) -> int:
+        """Invalid state or covariance: restart s and v at the measurement; r and its covariance block are kept
+        when they are finite and valid (r >= 0, positive definite), else taken from the prior (Table 1)."""
+        self.counters["resets"] += 1
+        self._initialise(zs, zv, True)
         return HEALTH_RESET
 
     def _nis_push(self, nis: float, dof: int) -> bool:

@@ -1,0 +1,140 @@
+"""`train-calib replay` and `demo`: outputs, summary.json, report.png, one-line errors, bundled bags."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from repo_paths import DATA, REPO
+
+sys.path.insert(0, str(Path(__file__).parent / "nodes"))
+from compare import compare, read_outputs
+from synthetic_bag import write_bag
+
+from train_calib import cli, paths
+from train_calib.pipeline import run_bag
+from train_calib.track import load_track
+from train_calib.train import load_train
+
+pytestmark = pytest.mark.ros
+
+TRACK = str(DATA / "small_track.yaml")
+TRAIN = str(DATA / "small_train.yaml")
+
+
+@pytest.fixture(scope="module")
+def bag(tmp_path_factory):
+    return write_bag(tmp_path_factory.mktemp("bag") / "synthetic")
+
+
+def _error_line(capsys, argv) -> str:
+    assert cli.main(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1, err
+    return err[0]
+
+
+def test_unreadable_inputs_exit_2_with_one_line_naming_the_problem(bag, tmp_path, capsys):
+    base = ["replay", "--track", TRACK, "--train", TRAIN, "--out", str(tmp_path / "o")]
+    line = _error_line(capsys, ["replay", str(tmp_path / "nothing"), *base[1:]])
+    assert "nothing: no such bag" in line
+    garbage = tmp_path / "garbage.mcap"
+    garbage.write_bytes(b"\x00not an mcap file")
+    assert "garbage.mcap: not a readable MCAP file" in _error_line(capsys, ["replay", str(garbage), *base[1:]])
+    line = _error_line(capsys, ["replay", str(bag), "--track", "/no/track.yaml", "--train", TRAIN])
+    assert line.endswith("/no/track.yaml: track file not found")
+    bad_params = tmp_path / "p.yaml"
+    bad_params.write_text("ukf_node: [unclosed\n")
+    line = _error_line(capsys, ["replay", str(bag), *base[1:], "--params-file", str(bad_params)])
+    assert "p.yaml: invalid YAML" in line
+    # a params file value the node refuses: the graph does not start, the reason is given
+    refused = tmp_path / "r.yaml"
+    refused.write_text("regime_node:\n  ros__parameters:\n    effort_tolerance: -1.0\n")
+    line = _error_line(capsys, ["replay", str(bag), *base[1:], "--params-file", str(refused), "--overwrite"])
+    assert "effort_tolerance" in line
+    from train_calib import bagio
+
+    speedless = tmp_path / "speedless"
+    with bagio.BagWriter(speedless, {bagio.GNSS_TOPIC: bagio.INPUT_TOPICS[bagio.GNSS_TOPIC]}) as writer:
+        fix = bagio.msg_class("sensor_msgs/msg/NavSatFix")(
+            header=bagio.make_header(1), status=bagio.msg_class("sensor_msgs/msg/NavSatStatus")(status=0, service=1),
+            latitude=52.0, longitude=5.0, altitude=0.0, position_covariance=np.zeros(9), position_covariance_type=0,
+        )  # fmt: skip
+        writer.write(bagio.GNSS_TOPIC, fix, 1)
+    assert "no /train/speed topic" in _error_line(capsys, ["replay", str(speedless), *base[1:]])
+
+
+def test_replay_writes_output_bag_summary_and_report(bag, tmp_path, capsys):
+    out = tmp_path / "out"
+    argv = ["replay", str(bag), "--track", TRACK, "--train", TRAIN, "--out", str(out), "--quiet"]
+    assert cli.main(argv) == 0
+    stdout = capsys.readouterr().out
+    assert f"{out}/output.mcap" in stdout
+    assert {p.name for p in out.iterdir()} == {"output.mcap", "metadata.yaml", "summary.json", "report.png"}
+    summary = json.loads((out / "summary.json").read_text())
+    reference = run_bag(bag, load_track(TRACK), load_train(TRAIN))
+    final = reference.estimates[-1]
+    for c in ("r0", "r1", "r2"):
+        entry = summary["final"][c]
+        assert entry["value"] == getattr(final, c)
+        assert entry["manufacturer"] == getattr(load_train(TRAIN).davis, c)
+    i = {"r0": 2, "r1": 3, "r2": 4}
+    assert [summary["final"][c]["std"] for c in i] == [float(final.covariance[k, k]) ** 0.5 for k in i.values()]
+    assert [r["run_id"] for r in summary["runs"]] == [0, 1]
+    closing = [f for f in reference.features if f.run_complete]
+    for run, f in zip(summary["runs"], closing):
+        assert run["features"]["run_complete"] is True
+        assert run["features"]["run_time"] == f.run_time
+        assert run["features"]["regime_time_share"] == pytest.approx(list(f.regime_time_share))
+    shares = summary["regime_share"]
+    assert sum(shares.values()) == pytest.approx(1.0)
+    assert summary["dropped"]["gnss_speed_node"] == {
+        "/gnss/fix": {"nan": 1, "no_fix": 1},
+        "/train/speed": {"nan": 1, "negative_speed": 1, "stale": 1},
+    }
+    assert summary["dropped_total"] == 5
+    n = len(reference.measurements)
+    counts = summary["output_counts"]
+    assert counts["/train_calib/measurement"] == counts["/train_calib/resistance"] == counts["/train_calib/regime"] == n
+    assert counts["/train_calib/features"] == len(reference.features)
+    assert summary["input_counts"] == {"/gnss/fix": 340, "/train/speed": 341, "/train/traction_power": 340}
+    png = (out / "report.png").read_bytes()
+    assert png[:8] == b"\x89PNG\r\n\x1a\n"
+    width, height = int.from_bytes(png[16:20], "big"), int.from_bytes(png[20:24], "big")
+    assert (width, height) == (1100, 1500)
+    # a second replay into the same directory is refused unless --overwrite
+    assert cli.main(argv) == 2
+    assert "output.mcap: already exists" in capsys.readouterr().err
+    assert cli.main([*argv, "--overwrite", "--no-report"]) == 0
+
+
+def _bundled_bags() -> list[Path]:
+    folder = paths.bags_dir()
+    return (
+        sorted(p for p in folder.iterdir() if p.is_dir() and (p / "metadata.yaml").is_file()) if folder.is_dir() else []
+    )
+
+
+@pytest.mark.parametrize("bundled", _bundled_bags(), ids=lambda p: p.name)
+def test_each_bundled_bag_through_the_graph_equals_the_offline_pipeline(bundled, tmp_path):
+    from train_calib.commands.replay import load_truth
+    from train_calib.replay import ReplayOptions, replay
+
+    truth = load_truth(bundled)
+    assert truth is not None, f"{bundled}: no truth file beside the bundled bag"
+    track = paths.track_file(Path(truth["meta"]["track"]["file"]).stem)
+    train = paths.train_file(Path(truth["meta"]["train"]["file"]).stem)
+    result = replay(ReplayOptions(bag=bundled, track=str(track), train=str(train), out=tmp_path))
+    reference = run_bag(bundled, load_track(track), load_train(train))
+    assert len(reference.estimates) > 50
+    assert compare(read_outputs(tmp_path), reference) == []
+    assert result.recorded["/train_calib/resistance"] == len(reference.estimates)
+
+
+def test_bundled_bags_are_present():
+    if not _bundled_bags():
+        pytest.skip("no bundled bags yet in bags/")
+    assert (REPO / "bags" / "intercity_32km_10s_00" / "metadata.yaml").is_file()

@@ -1,0 +1,217 @@
+"""Replay a bag through the node graph: record every output, write summary.json and report.png.
+
+The bag's input topics (/gnss/fix, /train/speed, optional /train/traction_power) are published with
+their recorded timing scaled by --rate (0: as fast as the graph keeps up, with flow control: nothing is
+lost) and /clock; the nodes run with use_sim_time in this process (one executor) or, with
+--processes, each in its own process. Outputs in DIR: output.mcap + metadata.yaml (a rosbag2 bag,
+DIR/output.mcap a complete MCAP file), summary.json, report.png. See docs/nodes.md.
+
+Exit status: 0; 2 with one line when the input or the configuration is unreadable (nothing replayed); 3 with
+one line when the input bag is damaged (truncated, corrupt chunks, undecodable messages: what could be read
+was replayed, the outputs are complete for it, summary.json has ``input_error``); 130 (SIGINT) or 143
+(SIGTERM) when interrupted (the outputs hold everything processed until then; a second signal aborts).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import tempfile
+from pathlib import Path
+from typing import Any
+
+from ..bagio import bag_name
+from ..errors import BagError
+
+NAME = "replay"
+HELP = "replay a bag through the node graph; write output.mcap, summary.json, report.png"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("bag", type=Path, help="rosbag2 directory or .mcap file with the input topics")
+    parser.add_argument("--track", required=True, help="track file or bundled track name (config/tracks)")
+    parser.add_argument("--train", required=True, help="train file or bundled train name (config/trains)")
+    add_common_arguments(parser)
+    parser.add_argument("--out", type=Path, help="output directory (default out/<bag name>)")
+
+
+def add_common_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--rate",
+        type=float,
+        default=0.0,
+        help="playback rate, 1 = real time (default 0: as fast as the graph keeps up)",
+    )
+    parser.add_argument("--processes", action="store_true", help="run each node in its own process")
+    parser.add_argument(
+        "--params-file",
+        type=Path,
+        action="append",
+        default=[],
+        metavar="F",
+        help="ROS 2 params file for the nodes (repeatable; e.g. config/train_calib.yaml)",
+    )
+    parser.add_argument(
+        "--ukf-preset",
+        choices=("paper", "converging"),
+        help="ukf_node parameters of a preset (docs/estimator.md): paper (Table 1, the defaults) or converging; "
+        "--params-file values still override",
+    )
+    parser.add_argument("--window", action="store_true", help="also run window_calib_node (needs traction power)")
+    parser.add_argument(
+        "--executor",
+        choices=("events", "single"),
+        default="events",
+        help="executor in one process (default events: rclpy's EventsExecutor)",
+    )
+    parser.add_argument(
+        "--wait-for-subscribers",
+        type=int,
+        default=0,
+        metavar="N",
+        help="start when every output topic has N subscribers besides the recorder (a DAS)",
+    )
+    parser.add_argument("--overwrite", action="store_true", help="replace the outputs of a previous replay in DIR")
+    parser.add_argument("--no-report", action="store_true", help="do not draw report.png")
+    parser.add_argument("--quiet", action="store_true", help="print only errors and the output location")
+
+
+def load_truth(bag: Path) -> dict[str, Any] | None:
+    """The simulated truth beside a bag (``<bag>.truth.json`` of ``train-calib simulate``), else None."""
+    from ..sim.truthio import truth_paths
+
+    path = truth_paths(bag)[1]
+    if not path.is_file():
+        return None
+    try:
+        meta = json.loads(path.read_text(encoding="utf-8"))
+        resistance = meta["resistance"]
+        return {
+            "r0": float(resistance["r0"]),
+            "r1": float(resistance["r1"]),
+            "r2": float(resistance["r2"]),
+            "file": str(path),
+            "meta": meta,
+        }
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise BagError(f"{path}: unreadable truth file: {exc.__class__.__name__}: {exc}") from None
+
+
+def execute(args: argparse.Namespace, out: Path, track: str, train: str) -> dict[str, Any]:
+    """Replay, then summary.json and report.png; returns the summary."""
+    from .. import paths
+    from ..nodes.config import GRAPH_NODES
+    from ..replay import ReplayOptions, replay
+    from ..report import write_report
+    from ..summary import read_outputs, summarize, write_summary
+    from ..train import load_train
+
+    nodes = GRAPH_NODES + (("window_calib_node",) if args.window else ())
+    log = (lambda text: None) if args.quiet else (lambda text: print(text, file=sys.stderr, flush=True))
+    truth = load_truth(args.bag)
+    with tempfile.TemporaryDirectory(prefix="train_calib_preset_") as tmp:
+        params_files = tuple(args.params_file)
+        if args.ukf_preset:
+            preset = Path(tmp) / f"ukf_{args.ukf_preset}.yaml"
+            preset.write_text(preset_params_yaml(args.ukf_preset), encoding="utf-8")
+            params_files = (preset, *params_files)
+            log(f"ukf_node: preset {args.ukf_preset}")
+        result = replay(
+            ReplayOptions(
+                bag=args.bag,
+                track=track,
+                train=train,
+                out=out,
+                rate=args.rate,
+                processes=args.processes,
+                params_files=params_files,
+                nodes=nodes,
+                executor=args.executor,
+                wait_for_subscribers=args.wait_for_subscribers,
+                overwrite=args.overwrite,
+                log=log,
+            )
+        )
+    train_spec = load_train(paths.train_file(train))
+    outputs = read_outputs(result.output_bag)
+    truth_values = {k: truth[k] for k in ("r0", "r1", "r2")} if truth else None
+    summary = summarize(
+        outputs,
+        train=train_spec,
+        truth=truth_values,
+        extra={
+            "bag": str(args.bag),
+            "track": track,
+            "train_file": train,
+            "mode": result.mode,
+            "executor": result.executor,
+            "rate": args.rate,
+            "ukf_preset": args.ukf_preset or "parameters",
+            "wall_time_s": round(result.wall_s, 3),
+            "bag_duration_s": round(result.bag_duration_s, 3),
+            "interrupted": result.interrupted,
+            "signal": result.signal,
+            "input_error": result.input_error,
+            "input_undecodable": result.undecodable,
+            "input_counts": result.sent,
+            "truth_file": truth["file"] if truth else None,
+        },
+    )
+    write_summary(out / "summary.json", summary)
+    if not args.no_report:
+        title = f"{bag_name(args.bag)}: {train_spec.name}, UKF estimate (layout of Cunillera et al. 2022, Fig. 3 and 6)"
+        try:
+            write_report(out / "report.png", outputs, train_spec, truth=truth_values, title=title)
+        except Exception as exc:  # a plot must not cost the outputs (e.g. an interrupted replay with no estimate)
+            log(f"report.png not drawn: {exc.__class__.__name__}: {exc}")
+    log(
+        f"replayed {sum(result.sent.values())} input messages in {result.wall_s:.1f} s "
+        f"({result.mode}, {result.executor}); recorded {sum(result.recorded.values())} output messages"
+    )
+    return summary
+
+
+def preset_params_yaml(name: str) -> str:
+    """A params file with every ukf_node parameter of a UKFConfig preset."""
+    import yaml
+
+    from ..estimation import UKFConfig
+
+    values = {k: list(v) if isinstance(v, tuple) else v for k, v in UKFConfig.preset(name).as_dict().items()}
+    return yaml.safe_dump({"ukf_node": {"ros__parameters": values}}, sort_keys=False)
+
+
+EXIT_OK = 0
+EXIT_ERROR = 2  # unreadable input or configuration: nothing was replayed (one line on stderr)
+EXIT_DAMAGED_INPUT = 3  # the input bag is damaged: what could be read was replayed, the outputs are complete for it
+
+
+def exit_status(summary: dict[str, Any]) -> int:
+    """0; 3 for a damaged input bag (outputs valid for what was read); 128 + signal when interrupted (130 SIGINT,
+    143 SIGTERM: the outputs are valid and hold everything processed until then)."""
+    if summary.get("interrupted"):
+        return 128 + int(summary.get("signal") or 2)
+    if summary.get("input_error"):
+        return EXIT_DAMAGED_INPUT
+    return EXIT_OK
+
+
+def report_input_error(command: str, summary: dict[str, Any]) -> None:
+    if summary.get("input_error"):
+        print(f"train-calib {command}: error: {summary['input_error']}", file=sys.stderr)
+
+
+def run(args: argparse.Namespace) -> int:
+    from ..summary import format_summary
+
+    out = args.out or Path("out") / bag_name(args.bag)
+    summary = execute(args, out, args.track, args.train)
+    if not args.quiet:
+        print(format_summary(summary))
+    print(
+        f"outputs: {out}/output.mcap (+ metadata.yaml), {out}/summary.json"
+        + ("" if args.no_report else f", {out}/report.png")
+    )
+    report_input_error(NAME, summary)
+    return exit_status(summary)

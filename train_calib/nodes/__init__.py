@@ -1,0 +1,6 @@
+"""The ROS 2 nodes (rclpy): thin adapters from messages to the core and back (docs/nodes.md).
+
+``config`` (no ROS) says which parameters each node declares; ``common`` holds the conventions every
+node follows (parameters, QoS, diagnostics, end of input, ``main``); ``convert`` maps core records to
+messages; one module per node, each with ``main()``.
+"""

@@ -1,0 +1,181 @@
+"""Which parameters each node declares, and config/train_calib.yaml generated from them (no ROS here).
+
+Every node declares the parameters of a few ParamSets: the common :class:`NodeConfig`, the files it
+reads, and its core configuration (``IngestConfig``, ``UKFConfig``, ...). Names are flat and unique
+within a node (robot_localization style), so a params file reads::
+
+    ukf_node:
+      ros__parameters:
+        meas_std_s: 4.0
+        carry_over: reset
+
+``NODE_PARAMS`` is the single table the nodes, the launch file, the replay and the params-file
+generator (:func:`params_yaml`) use; a test checks that ``config/train_calib.yaml`` equals it.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+from ..estimation.config import FeatureConfig, RegimeConfig, UKFConfig
+from ..estimation.safeguards import SafeguardConfig
+from ..ingest import IngestConfig
+from ..params import ParamSet, ParamSpec, param
+from ..window.config import WindowConfig
+
+
+@dataclass(frozen=True)
+class NodeConfig(ParamSet):
+    """Parameters every train_calib node has: diagnostics, QoS depths, replay support."""
+
+    diagnostics_period: float = param(
+        1.0,
+        "period of the /diagnostics status (node clock: sim time when use_sim_time)",
+        unit="s",
+        low=0.01,
+        high=3600.0,
+    )
+    input_timeout: float = param(
+        30.0,
+        "an input topic silent for longer than this (after its first message) is reported as WARN",
+        unit="s",
+        low=0.0,
+        low_open=True,
+    )
+    input_depth: int = param(
+        100,
+        "history depth of the input subscriptions (messages buffered while the node is busy)",
+        low=1,
+        high=100000,
+        read_only=True,
+    )
+    output_depth: int = param(
+        1000,
+        "history depth of the reliable output publishers (messages kept for slow reliable subscribers)",
+        low=1,
+        high=100000,
+        read_only=True,
+    )
+    report_progress: bool = param(
+        False,
+        "publish handled/published counts on /train_calib/progress after every input (replay flow control)",
+        read_only=True,
+    )
+
+
+@dataclass(frozen=True)
+class TrackTrainFiles(ParamSet):
+    """The track and train files (a path, or the name of a bundled file in config/tracks, config/trains)."""
+
+    track_file: str = param("intercity_32km", "track file: path or bundled name", read_only=True)
+    train_file: str = param("virm6", "train file: path or bundled name (manufacturer values, limits)", read_only=True)
+
+
+@dataclass(frozen=True)
+class TrainFile(ParamSet):
+    """The train file (a path, or the name of a bundled file in config/trains)."""
+
+    train_file: str = param("virm6", "train file: path or bundled name (manufacturer values, limits)", read_only=True)
+
+
+MEASUREMENT_TOPIC = "/train_calib/measurement"
+RESISTANCE_TOPIC = "/train_calib/resistance"
+REGIME_TOPIC = "/train_calib/regime"
+FEATURES_TOPIC = "/train_calib/features"
+WINDOW_TOPIC = "/train_calib/window_resistance"
+
+NODE_PARAMS: dict[str, tuple[type[ParamSet], ...]] = {
+    "gnss_speed_node": (NodeConfig, TrackTrainFiles, IngestConfig),
+    "ukf_node": (NodeConfig, TrainFile, UKFConfig, SafeguardConfig),
+    "regime_node": (NodeConfig, RegimeConfig),
+    "feature_node": (NodeConfig, FeatureConfig),
+    "window_calib_node": (NodeConfig, TrainFile, WindowConfig),
+}
+"""Node name -> the ParamSets whose fields it declares as ROS parameters (in this order)."""
+
+GRAPH_NODES = ("gnss_speed_node", "ukf_node", "regime_node", "feature_node")
+"""The nodes the replay and the launch file start by default (window_calib_node needs traction power)."""
+
+
+def node_specs(node: str) -> list[tuple[type[ParamSet], ParamSpec]]:
+    """(owner ParamSet, spec) of every parameter of a node; names are unique within the node."""
+    out: list[tuple[type[ParamSet], ParamSpec]] = []
+    seen: dict[str, str] = {}
+    for owner in NODE_PARAMS[node]:
+        for spec in owner.specs():
+            if spec.name in seen:
+                raise ValueError(f"{node}: parameter {spec.name} declared by {seen[spec.name]} and {owner.__name__}")
+            seen[spec.name] = owner.__name__
+            out.append((owner, spec))
+    return out
+
+
+def default_parameters(node: str) -> dict[str, Any]:
+    """Name -> default value (lists for tuples) of every parameter of a node."""
+    return {spec.name: _plain(spec.default) for _, spec in node_specs(node)}
+
+
+def _plain(value: Any) -> Any:
+    return list(value) if isinstance(value, tuple) else value
+
+
+def _yaml_value(value: Any) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, float):
+        if math.isinf(value):
+            return ".inf" if value > 0 else "-.inf"
+        text = repr(value)  # shortest round-trip form
+        if "e" in text and "." not in text:  # YAML 1.1 (PyYAML, rcl) reads 1e-06 as a string: write 1.0e-06
+            mantissa, exponent = text.split("e")
+            text = f"{mantissa}.0e{exponent}"
+        return text if any(c in text for c in ".n") else text + ".0"
+    if isinstance(value, int):
+        return str(value)
+    if isinstance(value, (list, tuple)):
+        return "[" + ", ".join(_yaml_value(v) for v in value) + "]"
+    text = str(value)
+    return '""' if text == "" else text if text.replace("_", "").replace("-", "").isalnum() else repr(text)
+
+
+def params_yaml(nodes: tuple[str, ...] | None = None) -> str:
+    """The ROS 2 params file with every parameter of every node, its default and its documentation."""
+    lines = [
+        "# train_calib: every parameter of every node with its default (generated from the core ParamSets by",
+        "# train_calib.nodes.config.params_yaml(); test/nodes/test_config.py checks the two agree).",
+        "# Use: ros2 run train_calib ukf_node --ros-args --params-file config/train_calib.yaml",
+        "#      train-calib replay BAG ... --params-file my.yaml   (only the values you change are needed)",
+        "# Units are SI (REP-103); read-only parameters can only be set at start.",
+    ]
+    for node in nodes or tuple(NODE_PARAMS):
+        lines += ["", f"{node}:", "  ros__parameters:"]
+        for owner in NODE_PARAMS[node]:
+            lines.append(f"    # -- {owner.__name__}: {(owner.__doc__ or '').strip().splitlines()[0]}")
+            for spec in owner.specs():
+                doc = spec.doc + (" (read-only)" if spec.read_only else "")
+                lines.append(f"    # {doc}")
+                lines.append(f"    {spec.name}: {_yaml_value(spec.default)}")
+    return "\n".join(lines) + "\n"
+
+
+__all__ = [
+    "FEATURES_TOPIC",
+    "GRAPH_NODES",
+    "MEASUREMENT_TOPIC",
+    "NODE_PARAMS",
+    "REGIME_TOPIC",
+    "RESISTANCE_TOPIC",
+    "WINDOW_TOPIC",
+    "NodeConfig",
+    "TrackTrainFiles",
+    "TrainFile",
+    "default_parameters",
+    "node_specs",
+    "params_yaml",
+]
+
+
+if __name__ == "__main__":  # python -m train_calib.nodes.config > config/train_calib.yaml
+    print(params_yaml(), end="")

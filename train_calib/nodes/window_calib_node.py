@@ -1,0 +1,178 @@
+"""window_calib_node: /train_calib/measurement + /train_calib/regime -> /train_calib/window_resistance.
+
+De Martinis & Corman's sliding-window calibration of A, B, C with traction power (the core's
+:class:`train_calib.window.WindowCalibrator`). Each TrackMeasurement is joined by stamp with its
+DrivingRegime from regime_node: a measurement is held until its regime arrives, until a regime of a
+later stamp shows that it will not come, or for at most ``max_regime_wait`` samples; then it is used
+with the regime from the power (their Section 5.1), as with ``regime_source`` power. The node is
+active only when the measurements carry traction power (``power_valid``, paired by gnss_speed_node
+from /train/traction_power): one WindowResistance per such measurement, with ``ill_posed`` set and
+the last well-posed A, B, C when the window cannot separate them. Parameter changes restart the
+window (the published values are kept).
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from typing import Any
+
+from train_calib_msgs.msg import DrivingRegime, TrackMeasurement, WindowResistance
+
+from .. import paths
+from ..measurement import Measurement
+from ..params import ParamSet
+from ..train import load_train
+from ..window import REGIME_NAMES, WindowCalibrator, WindowConfig, WindowFit
+from .common import WARN, TrainCalibNode, run_node
+from .config import MEASUREMENT_TOPIC, REGIME_TOPIC, WINDOW_TOPIC, TrainFile
+from .convert import measurement_from_msg, stamp_to_ns, time_msg
+
+DROP_REASONS = ("out_of_order", "non_finite")
+"""Calibrator counts that are dropped samples (the others are outcomes, reported as values)."""
+
+
+def window_to_msg(fit: WindowFit, frame_id: str = "") -> WindowResistance:
+    """WindowFit -> WindowResistance (same names and units; NaN before the first well-posed window)."""
+    msg = WindowResistance()
+    msg.header.stamp = time_msg(fit.stamp_ns)
+    msg.header.frame_id = frame_id
+    msg.run_id = int(fit.run_id)
+    msg.window_length = float(fit.window_length)
+    msg.sample_count = int(fit.sample_count)
+    msg.gof_kind = int(fit.gof_kind)
+    msg.gof_value = float(fit.gof_value)
+    msg.a, msg.b, msg.c = float(fit.a), float(fit.b), float(fit.c)
+    msg.r0, msg.r1, msg.r2 = float(fit.r0), float(fit.r1), float(fit.r2)
+    msg.regime = int(fit.regime)
+    msg.ill_posed = bool(fit.ill_posed)
+    msg.speed_span = float(fit.speed_span)
+    return msg
+
+
+class WindowCalibNode(TrainCalibNode):
+    NODE_NAME = "window_calib_node"
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__(**kwargs)
+        try:
+            self.train = load_train(paths.train_file(self.config(TrainFile).train_file))
+            self.calibrator = WindowCalibrator(self.train, self.config(WindowConfig))
+        except BaseException:
+            self.destroy_node()
+            raise
+        self._held: deque[tuple[Measurement, str]] = deque()  # (measurement, frame_id) awaiting the regime
+        self._regimes: dict[int, int] = {}  # stamp_ns -> regime, for held and not yet seen measurements
+        self._newest_regime_ns = -1
+        self._measurements = 0
+        self._with_power = 0
+        self._regime_from_power = 0
+        self._last: WindowFit | None = None
+        self.output(WindowResistance, WINDOW_TOPIC)
+        self.chain_input(TrackMeasurement, MEASUREMENT_TOPIC, self._on_measurement)
+        self.chain_input(DrivingRegime, REGIME_TOPIC, self._on_regime)
+        cfg = self.config(WindowConfig)
+        self.get_logger().info(
+            f"train {self.train.name}: gamma m {self.train.effective_mass_kg / 1000:.1f} t, eta "
+            f"{self.train.transmission_efficiency:g}; window {cfg.window_length:g} s, GoF {cfg.gof}, "
+            f"regime from {cfg.regime_source}"
+        )
+
+    # -- inputs -----------------------------------------------------------------------------------
+    def _on_measurement(self, msg: TrackMeasurement) -> None:
+        m = measurement_from_msg(msg)
+        self._measurements += 1
+        self._with_power += bool(m.power_valid)
+        self._held.append((m, msg.header.frame_id))
+        self._release()
+
+    def _on_regime(self, msg: DrivingRegime) -> None:
+        stamp = stamp_to_ns(msg.header.stamp)
+        self._regimes[stamp] = int(msg.regime)
+        self._newest_regime_ns = max(self._newest_regime_ns, stamp)
+        self._release()
+
+    def _release(self, everything: bool = False) -> None:
+        """Feed held measurements, oldest first, as soon as their regime is known or cannot come."""
+        cfg = self.config(WindowConfig)
+        while self._held:
+            m, frame_id = self._held[0]
+            regime = self._regimes.pop(m.stamp_ns, None)
+            if regime is None and cfg.regime_source == "regime_topic":
+                # regimes come in stamp order: one of a later stamp means this one will not come; with no
+                # regime at all after max_regime_wait measurements, regime_node is not running
+                expected = self._newest_regime_ns >= 0 or self._measurements <= cfg.max_regime_wait
+                waiting = expected and m.stamp_ns > self._newest_regime_ns and len(self._held) <= cfg.max_regime_wait
+                if waiting and not everything:
+                    return
+                self._regime_from_power += 1
+            self._held.popleft()
+            fit = self.calibrator.update(m, regime)
+            if fit is not None:
+                self._last = fit
+                self.publish(WINDOW_TOPIC, window_to_msg(fit, frame_id))
+        # regimes of measurements never seen (dropped upstream) must not accumulate
+        if len(self._regimes) > 4 * max(cfg.max_regime_wait, 1) + 100:
+            oldest_held = self._held[0][0].stamp_ns if self._held else self._newest_regime_ns
+            self._regimes = {s: r for s, r in self._regimes.items() if s >= oldest_held}
+
+    # -- node conventions -------------------------------------------------------------------------
+    @property
+    def pending(self) -> int:
+        return len(self._held)
+
+    def end_of_input(self) -> None:
+        self._release(everything=True)
+
+    def on_parameters_changed(self, changed: set[type[ParamSet]]) -> None:
+        if WindowConfig in changed:
+            self._release(everything=True)
+            self.calibrator.set_config(self.config(WindowConfig))
+
+    def refresh_counters(self) -> None:
+        counts = self.calibrator.counts
+        self.set_drops(MEASUREMENT_TOPIC, {reason: counts[reason] for reason in DROP_REASONS if counts[reason]})
+
+    def diagnostic_values(self) -> list[tuple[str, Any]]:
+        counts = self.calibrator.counts
+        out: list[tuple[str, Any]] = [
+            ("measurements with traction power", self._with_power),
+            ("measurements without power (inactive)", counts["no_power"]),
+            ("windows well posed", counts["well_posed"]),
+            ("windows ill posed", counts["ill_posed"]),
+            ("windows with eq. 6/7 rows dropped", counts["windows_with_dropped_constraints"]),
+            ("steps not usable (speed, gap, power)", counts["invalid_step"]),
+            ("regime from power (no /train_calib/regime in time)", self._regime_from_power),
+            ("held for the regime", len(self._held)),
+        ]
+        f = self._last
+        if f is not None:
+            out += [
+                ("run_id", f.run_id),
+                ("A (N)", _g(f.a)),
+                ("B (N/(m/s))", _g(f.b)),
+                ("C (N/(m/s)^2)", _g(f.c)),
+                ("r0 r1 r2 (N/kg)", f"{_g(f.r0)} {_g(f.r1)} {_g(f.r2)}"),
+                ("last window steps", f.sample_count),
+                ("last window regime", REGIME_NAMES.get(f.regime, f.regime)),
+                ("last window GoF (N)", _g(f.gof_value)),
+                ("last window ill posed", f.reason or "no"),
+            ]
+        return out
+
+    def diagnostic_problems(self) -> list[tuple[int, str]]:
+        if self._measurements and not self._with_power:
+            return [(WARN, f"inactive: none of {self._measurements} measurements carries traction power")]
+        return []
+
+
+def _g(value: float) -> str:
+    return "nan" if math.isnan(value) else f"{value:.6g}"
+
+
+def main(args: list[str] | None = None) -> int:
+    return run_node(WindowCalibNode, args)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,190 @@
+"""The node graph's chain without ROS: Ingest -> ResistanceEstimator -> RegimeClassifier -> features.
+
+``Pipeline`` does per sample exactly what the nodes do per message (the same core objects, called in
+the same order with the same values), so replaying a bag through the graph and running
+``run_bag(bag)`` on it give the same numbers, message for message; a test checks this. Use it for
+offline work on bags or on a MeasurementSeries, and as the reference of the graph.
+
+:class:`FeatureStream` is the feature node's publication rule (shared with ``feature_node``): features
+on each regime change, and once with ``run_complete`` when the run ends (next run_id, end of input).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from .bagio import GNSS_TOPIC, INPUT_TOPICS, POWER_TOPIC, SPEED_TOPIC, iter_bag
+from .estimation import (
+    FeatureAccumulator,
+    FeatureConfig,
+    Features,
+    RegimeClassifier,
+    RegimeConfig,
+    ResistanceEstimator,
+    UKFConfig,
+)
+from .estimation.records import EstimateSample
+from .estimation.safeguards import SafeguardConfig
+from .ingest import Ingest, IngestConfig, IngestStats, fix_from_msg, power_from_msg, speed_from_msg
+from .measurement import Measurement, MeasurementSeries
+from .track import Track
+from .train import Davis, TrainSpec
+
+
+@dataclass
+class RegimeRecord:
+    """One /train_calib/regime message (DrivingRegime.msg fields, SI units)."""
+
+    stamp_ns: int
+    run_id: int
+    regime: int
+    s: float
+    v: float
+    effort: float
+    acceleration: float
+
+
+class FeatureStream:
+    """Features to publish per regime sample: on a regime change, and ``run_complete`` at the end of a run."""
+
+    def __init__(self, config: FeatureConfig | None = None) -> None:
+        self.config = config if config is not None else FeatureConfig()
+        self.accumulator = FeatureAccumulator(self.config)
+        self.run_id: int | None = None
+        self.complete = False
+        self.runs_completed = 0
+        self._next_config: FeatureConfig | None = None
+
+    def set_config(self, config: FeatureConfig) -> None:
+        """Takes effect at the next run."""
+        self._next_config = config
+
+    def update(self, sample: Any, regime: int) -> list[Features]:
+        """`sample` has stamp_ns, run_id, s, v, effort, acceleration (an estimate or a regime record)."""
+        out = []
+        if sample.run_id != self.run_id:
+            out += self.end_of_input()
+            if self._next_config is not None:
+                self.config, self._next_config = self._next_config, None
+                self.accumulator = FeatureAccumulator(self.config)
+            self.run_id, self.complete = int(sample.run_id), False
+        if self.accumulator.update(sample, int(regime)):
+            out.append(self.accumulator.snapshot())
+        return out
+
+    def end_of_input(self) -> list[Features]:
+        """Close the current run (once)."""
+        if self.run_id is None or self.complete:
+            return []
+        self.complete = True
+        self.runs_completed += 1
+        return [self.accumulator.snapshot(run_complete=True)]
+
+
+@dataclass
+class PipelineOutput:
+    """Everything the graph would publish, per output topic, in publication order."""
+
+    measurements: list[Measurement] = field(default_factory=list)
+    estimates: list[EstimateSample] = field(default_factory=list)
+    regimes: list[RegimeRecord] = field(default_factory=list)
+    features: list[Features] = field(default_factory=list)
+    ingest_stats: IngestStats | None = None
+
+    @property
+    def final(self) -> EstimateSample | None:
+        return self.estimates[-1] if self.estimates else None
+
+
+class Pipeline:
+    """Online chain of the core boxes; feed ingest events (or measurements), then ``end_of_input()``."""
+
+    def __init__(
+        self,
+        track: Track | None,
+        train: TrainSpec,
+        *,
+        ingest: IngestConfig | None = None,
+        ukf: UKFConfig | None = None,
+        regime: RegimeConfig | None = None,
+        features: FeatureConfig | None = None,
+        initial: Davis | None = None,
+        safeguards: SafeguardConfig | None = None,
+    ) -> None:
+        self.ingest = Ingest(track, train, ingest) if track is not None else None
+        self.estimator = ResistanceEstimator(train, ukf, initial, safeguards)
+        self.classifier = RegimeClassifier(regime)
+        self.features = FeatureStream(features)
+        self.out = PipelineOutput(ingest_stats=self.ingest.stats if self.ingest is not None else None)
+
+    def add_event(self, event: Any) -> None:
+        """A GnssFix, SpeedSample or PowerSample (ingest input)."""
+        assert self.ingest is not None, "no track: feed measurements with add_measurement"
+        for m in self.ingest.add(event):
+            self.add_measurement(m)
+
+    def add_message(self, topic: str, msg: Any) -> None:
+        """An input message (rclpy or rosbags) of /gnss/fix, /train/speed or /train/traction_power."""
+        if topic == GNSS_TOPIC:
+            self.add_event(fix_from_msg(msg))
+        elif topic == SPEED_TOPIC:
+            self.add_event(speed_from_msg(msg))
+        elif topic == POWER_TOPIC:
+            self.add_event(power_from_msg(msg))
+
+    def add_measurement(self, m: Measurement) -> None:
+        out = self.out
+        out.measurements.append(m)
+        e = self.estimator.update(m)
+        if self.estimator.rejected is not None:  # ukf_node drops it: nothing published downstream
+            return
+        out.estimates.append(e)
+        regime = self.classifier.classify(e.effort, e.acceleration, e.v)
+        out.regimes.append(RegimeRecord(e.stamp_ns, e.run_id, regime, e.s, e.v, e.effort, e.acceleration))
+        out.features += self.features.update(e, regime)
+
+    def end_of_input(self) -> PipelineOutput:
+        """What the replay does at the end: the ingest releases held samples, then the run is closed."""
+        if self.ingest is not None:
+            for m in self.ingest.flush():
+                self.add_measurement(m)
+        self.out.features += self.features.end_of_input()
+        return self.out
+
+
+def bag_messages(bag: str | Path) -> Iterator[tuple[str, Any]]:
+    """(topic, decoded rosbags message) of the bag's input topics in log-time order (the replay's order)."""
+    for m in iter_bag(bag, INPUT_TOPICS):
+        yield m.topic, m.decode()
+
+
+def run_bag(bag: str | Path, track: Track, train: TrainSpec, **configs: Any) -> PipelineOutput:
+    """The whole chain on a bag's inputs, as the graph would run it."""
+    p = Pipeline(track, train, **configs)
+    for topic, msg in bag_messages(bag):
+        p.add_message(topic, msg)
+    return p.end_of_input()
+
+
+def run_measurements(
+    measurements: Iterable[Measurement] | MeasurementSeries, train: TrainSpec, **configs: Any
+) -> PipelineOutput:
+    """The chain after the ingest, on measurements (e.g. a simulated MeasurementSeries)."""
+    p = Pipeline(None, train, **configs)
+    for m in measurements:
+        p.add_measurement(m)
+    return p.end_of_input()
+
+
+__all__ = [
+    "FeatureStream",
+    "Pipeline",
+    "PipelineOutput",
+    "RegimeRecord",
+    "bag_messages",
+    "run_bag",
+    "run_measurements",
+]

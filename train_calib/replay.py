@@ -1,0 +1,515 @@
+"""Replay a bag's input topics through the node graph and record every output (``train-calib replay``).
+
+The bag's ``/gnss/fix``, ``/train/speed`` and ``/train/traction_power`` messages are published as they
+were recorded (the serialized bytes, in log-time order) with their recorded timing scaled by ``rate``;
+``rate`` 0 publishes as fast as the graph keeps up. ``/clock`` carries the bag's time (the nodes run with
+``use_sim_time``), published before the messages it covers and at most ``clock_hz`` times per second of
+wall time.
+
+Flow control, not sleeps: each input message is published only once the ingest node has handled the
+previous one (lockstep on the head of the graph, so the ingest sees exactly the bag's order whatever
+the DDS or the executor schedules), and no topic is allowed to fall more than ``max_lag`` messages
+behind (published but not yet handled by its subscriber nodes or the recorder) — below the outputs'
+history depth, so nothing is lost at any rate. At the end the graph is drained, each node gets its end
+of input in chain order (the ingest releases held samples, the feature node closes the run), the nodes
+publish their final /diagnostics and the recording is closed.
+
+Nodes run in this process on one executor (the rclpy EventsExecutor when available, else the
+SingleThreadedExecutor), or each in its own process (``processes=True``), watched through
+``/train_calib/progress``.
+"""
+
+from __future__ import annotations
+
+import signal
+import threading
+import time
+from collections import Counter
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from . import paths
+from .bagio import INPUT_TOPICS, OUTPUT_TOPICS, BagDamage, bag_topics, iter_bag, typestore
+from .errors import BagError, ConfigError, TrainCalibError
+from .nodes.config import GRAPH_NODES
+from .record import METADATA_FILE, OUTPUT_FILE, qos_dict
+from .track import load_track
+from .train import load_train
+from .yamlcheck import load_yaml_mapping
+
+DEFAULT_CLOCK_HZ = 20.0
+STARTUP_TIMEOUT_S = 60.0
+STALL_TIMEOUT_S = 60.0
+
+
+class ReplayError(TrainCalibError):
+    """The graph could not be started or stopped making progress."""
+
+
+class Interrupted(Exception):
+    pass
+
+
+@dataclass
+class ReplayOptions:
+    bag: Path
+    track: str  # path or bundled name
+    train: str  # path or bundled name
+    out: Path
+    rate: float = 0.0  # 0: as fast as the graph keeps up
+    processes: bool = False
+    params_files: tuple[Path, ...] = ()
+    nodes: tuple[str, ...] = GRAPH_NODES
+    clock_hz: float = DEFAULT_CLOCK_HZ
+    executor: str = "events"  # in one process: events or single
+    wait_for_subscribers: int = 0  # extra subscribers (e.g. a DAS) every output must have before starting
+    max_lag: int = 200
+    overwrite: bool = False
+    log: Callable[[str], None] | None = None
+    on_input: Callable[[str, int, int], None] | None = None  # (topic, stamp... log time ns, wall ns) hook
+    extra_nodes: Callable[[Any], Sequence[Any]] | None = None  # context -> nodes to spin with the graph
+    until_s: float | None = None  # replay only the first `until_s` seconds of bag time
+    graph_factory: Callable[..., Any] | None = None  # (context, names, overrides, params_files) -> Graph (benchmarks)
+
+
+@dataclass
+class ReplayResult:
+    out: Path
+    output_bag: Path
+    sent: dict[str, int]
+    recorded: dict[str, int]
+    wall_s: float
+    bag_duration_s: float
+    mode: str
+    executor: str
+    interrupted: bool = False
+    max_behind_s: float = 0.0  # finite rate: the furthest a message was published after its due time
+    stream_s: float = 0.0  # wall time from the first input published to the graph having handled the last
+    stream_cpu_s: float = 0.0  # CPU time of this process over the same span (all threads)
+    drops: dict[str, dict[str, dict[str, int]]] = field(default_factory=dict)
+    input_error: str | None = None  # the input bag was damaged: replayed what could be read (exit status 3)
+    undecodable: dict[str, int] = field(default_factory=dict)
+    signal: int | None = None  # the signal that interrupted the replay (SIGINT 2, SIGTERM 15)
+
+
+@dataclass
+class BagInputs:
+    topics: dict[str, str]  # input topic -> type present in the bag
+    messages: list[tuple[str, int, bytes]]  # (topic, log time ns, CDR) in log-time order
+    error: str | None = None  # the bag is damaged: what was wrong (messages hold what could be read)
+    undecodable: dict[str, int] = field(default_factory=dict)  # topic -> messages left out (not valid CDR)
+
+    @property
+    def duration_s(self) -> float:
+        return (self.messages[-1][1] - self.messages[0][1]) * 1e-9 if self.messages else 0.0
+
+
+def load_inputs(bag: str | Path) -> BagInputs:
+    """The bag's input messages; BagError (one line) for an unreadable bag or one without inputs."""
+    topics = bag_topics(bag)
+    present = {}
+    for topic, expected in INPUT_TOPICS.items():
+        if topic in topics:
+            if topics[topic] != expected:
+                raise BagError(f"{bag}: topic {topic} has type {topics[topic]}, expected {expected}")
+            present[topic] = expected
+    if "/train/speed" not in present or "/gnss/fix" not in present:
+        missing = [t for t in ("/gnss/fix", "/train/speed") if t not in present]
+        raise BagError(f"{bag}: no {' and no '.join(missing)} topic (found: {', '.join(sorted(topics)) or 'none'})")
+    store = typestore()
+    messages: list[tuple[str, int, bytes]] = []
+    undecodable: Counter[str] = Counter()
+    error = None
+    try:
+        for m in iter_bag(bag, present):
+            try:  # a message the nodes could not deserialize is left out and counted (a damaged bag)
+                store.deserialize_cdr(m.data, present[m.topic])
+            except Exception:
+                undecodable[m.topic] += 1
+                continue
+            messages.append((m.topic, m.log_time_ns, m.data))
+    except BagDamage as exc:
+        error = str(exc)
+    if not messages:
+        raise BagError(error or f"{bag}: the input topics hold no messages")
+    if undecodable and error is None:
+        error = f"{bag}: {sum(undecodable.values())} input messages are not valid CDR and were left out"
+    return BagInputs(present, messages, error, dict(undecodable))
+
+
+def resolve_inputs(track: str, train: str) -> tuple[Path, Path]:
+    """Paths of the track and train files (a path or a bundled name); loads them to fail early in one line."""
+    track_path, train_path = paths.track_file(track), paths.train_file(train)
+    load_track(track_path)
+    load_train(train_path)
+    return track_path, train_path
+
+
+def prepare_out(out: Path, overwrite: bool) -> None:
+    """Create the output directory; refuse (or with overwrite, remove) the files a replay writes."""
+    products = [OUTPUT_FILE, METADATA_FILE, "summary.json", "report.png"]
+    existing = [out / p for p in products if (out / p).exists()]
+    if existing and not overwrite:
+        raise BagError(f"{existing[0]}: already exists (use --overwrite or another --out)")
+    for path in existing:
+        path.unlink()
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise BagError(f"{out}: cannot create the output directory: {exc.strerror or exc}") from None
+
+
+class Replay:
+    """One replay: ``Replay(options).run()``."""
+
+    def __init__(self, options: ReplayOptions) -> None:
+        self.o = options
+        self._stop = threading.Event()
+        self._signum: int | None = None
+        self._last_sent_ns = 0
+        self._log = options.log or (lambda text: None)
+
+    # -- the run ------------------------------------------------------------------------------
+    def run(self) -> ReplayResult:
+        import rclpy
+        from rclpy.context import Context
+        from rclpy.signals import SignalHandlerOptions
+
+        o = self.o
+        if o.rate < 0:
+            raise ConfigError("replay", "rate", f"{o.rate:g} is out of range: must be at least 0")
+        for f in o.params_files:
+            load_yaml_mapping(f, "params file")
+        inputs = load_inputs(o.bag)
+        if o.until_s is not None:
+            end = inputs.messages[0][1] + int(o.until_s * 1e9)
+            inputs = BagInputs(inputs.topics, [m for m in inputs.messages if m[1] <= end])
+        track_path, train_path = resolve_inputs(o.track, o.train)
+        prepare_out(o.out, o.overwrite)
+
+        context = Context()
+        rclpy.init(args=[], context=context, signal_handler_options=SignalHandlerOptions.NO)
+        previous = {s: signal.signal(s, self._on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+        try:
+            return self._run(context, inputs, track_path, train_path)
+        finally:
+            for s, handler in previous.items():
+                signal.signal(s, handler)
+            rclpy.try_shutdown(context=context)
+
+    def _on_signal(self, signum: int, frame: Any) -> None:
+        if self._stop.is_set():
+            raise KeyboardInterrupt
+        self._signum = signum
+        self._stop.set()
+
+    def _run(self, context: Any, inputs: BagInputs, track_path: Path, train_path: Path) -> ReplayResult:
+        import rclpy
+        from builtin_interfaces.msg import Time
+        from rclpy.parameter import Parameter
+        from rosgraph_msgs.msg import Clock
+
+        from .nodes.common import reliable_qos
+        from .nodes.graph import InProcessGraph, ProcessGraph
+        from .record import McapBagWriter, Recorder, message_class
+
+        o = self.o
+        overrides = {"track_file": str(track_path), "train_file": str(train_path), "use_sim_time": True}
+        self.node = rclpy.create_node("train_calib_replay", context=context)
+        rec_node = rclpy.create_node(
+            "train_calib_recorder", context=context, parameter_overrides=[Parameter("use_sim_time", value=True)]
+        )
+        self.executor, executor_name = self._make_executor(context)
+        qos = reliable_qos(1000)
+        self.pubs = {t: self.node.create_publisher(message_class(ty), t, qos) for t, ty in inputs.topics.items()}
+        self.clock_pub = self.node.create_publisher(Clock, "/clock", reliable_qos(10))
+        self._clock_msg, self._time_msg = Clock, Time
+        out_qos = {t: qos_dict(depth=1000) for t in OUTPUT_TOPICS} | {"/diagnostics": qos_dict(depth=100)}
+        writer = McapBagWriter(o.out, OUTPUT_TOPICS, qos=out_qos)
+        self.recorder = Recorder(rec_node, writer, OUTPUT_TOPICS)
+        graph = None
+        extra: list[Any] = []
+        wall0 = time.monotonic()
+        interrupted = False
+        max_behind = 0.0
+        stream_s = stream_cpu_s = 0.0
+        sent: Counter[str] = Counter()
+        try:
+            if o.graph_factory is not None:
+                graph = o.graph_factory(context, o.nodes, overrides, o.params_files)
+            elif o.processes:
+                graph = ProcessGraph(self.node, o.nodes, overrides | {"report_progress": True}, o.params_files)
+            else:
+                graph = InProcessGraph(context, o.nodes, overrides, o.params_files)
+            self.graph = graph
+            extra += list(o.extra_nodes(context)) if o.extra_nodes is not None else []
+            for n in (self.node, rec_node, *getattr(graph, "nodes", {}).values(), *extra):
+                self.executor.add_node(n)
+            self._publish_clock(inputs.messages[0][1])
+            try:
+                self._wait_connected(graph)
+            except Interrupted:
+                interrupted = True
+            self._log(
+                f"replaying {len(inputs.messages)} messages ({inputs.duration_s:.0f} s of bag time) through "
+                f"{', '.join(o.nodes)} ({'one process per node' if o.processes else 'one process'}, "
+                f"rate {'max' if o.rate == 0 else f'{o.rate:g}x'})"
+            )
+            try:
+                if interrupted:
+                    raise Interrupted
+                stream0, cpu0 = time.monotonic(), time.process_time()
+                max_behind = self._publish_all(graph, inputs, sent)
+                self._spin_until(
+                    lambda: graph.settled(self.recorder.received), lambda: "the graph to handle the last input", graph
+                )
+                stream_s, stream_cpu_s = time.monotonic() - stream0, time.process_time() - cpu0
+                self._end_of_input(graph, sent)
+            except Interrupted:
+                interrupted = True
+                self._log("interrupted: the graph handles what it has received, then the recording is closed")
+                try:  # no new input: what was published flows through and each run is closed, as at the end
+                    self._end_of_input(graph, sent, interruptible=False, timeout_s=10.0)
+                except ReplayError as exc:
+                    self._log(f"the graph did not drain after the interruption: {exc}")
+            self._publish_clock(self._last_sent_ns if interrupted else inputs.messages[-1][1], force=True)
+            try:
+                self._finish(graph)
+            except ReplayError:
+                if not interrupted:
+                    raise
+                self._log("the graph did not finish cleanly after the interruption; the recording is closed")
+        except BaseException:
+            writer.close()
+            if not sent and not interrupted:  # failed before the first input: leave no empty recording behind
+                writer.path.unlink(missing_ok=True)
+                writer.metadata_path.unlink(missing_ok=True)
+            raise
+        finally:
+            writer.close()
+            if graph is not None:
+                for n in getattr(graph, "nodes", {}).values():
+                    self.executor.remove_node(n)
+                graph.close()
+            self.executor.shutdown()
+            for n in extra:
+                n.destroy_node()
+            rec_node.destroy_node()
+            self.node.destroy_node()
+        wall = time.monotonic() - wall0
+        return ReplayResult(
+            out=o.out,
+            output_bag=o.out / OUTPUT_FILE,
+            sent=dict(sent),
+            recorded=dict(writer.counts),
+            wall_s=wall,
+            bag_duration_s=inputs.duration_s,
+            mode="processes" if o.processes else "one process",
+            executor=executor_name,
+            interrupted=interrupted,
+            max_behind_s=max_behind,
+            stream_s=stream_s,
+            stream_cpu_s=stream_cpu_s,
+            input_error=inputs.error,
+            undecodable=dict(inputs.undecodable),
+            signal=self._signum if interrupted else None,
+        )
+
+    def _make_executor(self, context: Any) -> tuple[Any, str]:
+        from .nodes.common import make_executor
+
+        executor = make_executor(context, self.o.executor)
+        return executor, type(executor).__name__
+
+    # -- pieces -----------------------------------------------------------------------------------
+    def _publish_clock(self, t_ns: int, force: bool = False) -> None:
+        now = time.monotonic()
+        if not force and now - getattr(self, "_clock_wall", -1e9) < 1.0 / self.o.clock_hz:
+            return
+        if t_ns <= getattr(self, "_clock_ns", -1) and not force:
+            return
+        self._clock_wall, self._clock_ns = now, t_ns
+        self.clock_pub.publish(
+            self._clock_msg(clock=self._time_msg(sec=int(t_ns // 1_000_000_000), nanosec=int(t_ns % 1_000_000_000)))
+        )
+
+    def _spin_until(
+        self,
+        condition: Callable[[], bool],
+        what: Callable[[], str],
+        graph: Any,
+        timeout_s: float = STALL_TIMEOUT_S,
+        interruptible: bool = True,
+    ) -> None:
+        """Spin the executor until `condition`; ReplayError if nothing moves for `timeout_s`; Interrupted on
+        SIGINT/SIGTERM when `interruptible`."""
+        if condition():
+            return
+        spin = self.executor.spin_once
+        stop = self._stop
+        started = time.monotonic()
+        last_check = started
+        signature = None
+        moved = started
+        while not condition():
+            if interruptible and stop.is_set():
+                raise Interrupted
+            spin(timeout_sec=0.05)
+            now = time.monotonic()
+            if now - last_check > 0.5:  # rarely: liveness of the node processes and a stall check
+                last_check = now
+                graph.check_alive()
+                current = self._signature(graph)
+                if current != signature:
+                    signature, moved = current, now
+                elif now - moved > timeout_s:
+                    raise ReplayError(f"the graph made no progress for {timeout_s:.0f} s while waiting for {what()}")
+
+    def _signature(self, graph: Any) -> tuple:
+        progress = graph.progress()
+        return (
+            tuple(
+                sorted(
+                    (n, tuple(sorted(p.handled.items())), tuple(sorted(p.published.items())))
+                    for n, p in progress.items()
+                )
+            ),
+            tuple(sorted(self.recorder.received.items())),
+        )
+
+    def _wait_connected(self, graph: Any) -> None:
+        extra = 1 + self.o.wait_for_subscribers
+        n_nodes = len(self.o.nodes)
+
+        def ready() -> bool:
+            return (
+                len(graph.progress()) == n_nodes
+                and graph.connected(extra)
+                and all(p.get_subscription_count() >= 1 for p in self.pubs.values())
+            )
+
+        def what() -> str:
+            progress = graph.progress()
+            missing = [n for n in self.o.nodes if n not in progress]
+            if missing:
+                return f"nodes to start: {', '.join(missing)}"
+            expected = graph.subscribers_expected(extra)
+            lacking = [
+                f"{t} ({p.matched.get(t, 0)} of {expected[t]} subscribers)"
+                for p in progress.values()
+                for t in p.published
+                if p.matched.get(t, 0) < expected[t]
+            ]
+            return "subscribers to match: " + ", ".join(lacking)
+
+        self._spin_until(ready, what, graph, timeout_s=STARTUP_TIMEOUT_S)
+
+    def _publish_all(self, graph: Any, inputs: BagInputs, sent: Counter) -> float:
+        o = self.o
+        ingest = "gnss_speed_node"
+        handled = self._handled_reader(graph, ingest)
+        t0 = inputs.messages[0][1]
+        wall0 = time.monotonic()
+        max_behind = 0.0
+        check_lag_every = 1 if o.processes else 64
+        for k, (topic, t_ns, data) in enumerate(inputs.messages):
+            if self._stop.is_set():
+                raise Interrupted
+            if o.rate > 0:
+                due = wall0 + (t_ns - t0) * 1e-9 / o.rate
+                while (now := time.monotonic()) < due:
+                    self._publish_clock(t0 + int((now - wall0) * o.rate * 1e9))
+                    self.executor.spin_once(timeout_sec=min(due - now, 1.0 / o.clock_hz))
+                max_behind = max(max_behind, time.monotonic() - due)
+            self._publish_clock(t_ns)
+            if k % check_lag_every == 0 and graph.lag(self.recorder.received) > o.max_lag:
+                self._spin_until(
+                    lambda: graph.lag(self.recorder.received) <= o.max_lag // 2,
+                    lambda: f"the graph to catch up (lag {graph.lag(self.recorder.received)})",
+                    graph,
+                )
+            self.pubs[topic].publish(data)
+            sent[topic] += 1
+            self._last_sent_ns = t_ns
+            if o.on_input is not None:
+                o.on_input(topic, t_ns, time.perf_counter_ns())
+            target = sent[topic]
+            self._spin_until(
+                lambda topic=topic, target=target: handled(topic) >= target,
+                lambda topic=topic, target=target: f"{ingest} to handle {topic} message {target}",
+                graph,
+            )
+        return max_behind
+
+    def _handled_reader(self, graph: Any, name: str) -> Callable[[str], int]:
+        nodes = getattr(graph, "nodes", None)
+        if nodes is not None:  # in one process: read the counter directly
+            counter = nodes[name].handled
+            return lambda topic: counter[topic]
+
+        def from_progress(topic: str) -> int:
+            progress = graph.progress().get(name)
+            return 0 if progress is None else progress.handled.get(topic, 0)
+
+        return from_progress
+
+    def _end_of_input(
+        self, graph: Any, sent: Counter, interruptible: bool = True, timeout_s: float = STALL_TIMEOUT_S
+    ) -> None:
+        """Every input sent handled by the ingest and everything published handled downstream (and recorded),
+        then each node's end of input in chain order, each settled before the next."""
+        recorded = self.recorder.received
+        handled = self._handled_reader(graph, "gnss_speed_node")
+        self._spin_until(
+            lambda: all(handled(t) >= n for t, n in sent.items()) and graph.settled(recorded),
+            lambda: "the graph to handle the last input",
+            graph,
+            timeout_s=timeout_s,
+            interruptible=interruptible,
+        )
+        for name in self.o.nodes:
+            graph.end_of_input(name)
+            self._spin_until(
+                lambda name=name: (
+                    graph.progress().get(name) is not None and graph.progress()[name].ended and graph.settled(recorded)
+                ),
+                lambda name=name: f"{name} to handle its end of input",
+                graph,
+                timeout_s=timeout_s,
+                interruptible=interruptible,
+            )
+
+    def _finish(self, graph: Any) -> None:
+        """Final /diagnostics from every node, then everything recorded."""
+        if self.o.processes:
+            graph.finish()
+            self._drain()
+            return
+        graph.finish()
+        expected = graph.diagnostics_published()
+        self._spin_until(
+            lambda: self.recorder.received["/diagnostics"] >= expected and graph.settled(self.recorder.received),
+            lambda: "the recorder to receive the final /diagnostics",
+            graph,
+            timeout_s=10.0 if self._stop.is_set() else STALL_TIMEOUT_S,
+            interruptible=False,
+        )
+
+    def _drain(self, quiet_s: float = 0.3) -> None:
+        """Spin until the recorder has received nothing new for `quiet_s` (after the node processes exited)."""
+        last = sum(self.recorder.received.values())
+        quiet_since = time.monotonic()
+        while time.monotonic() - quiet_since < quiet_s:
+            self.executor.spin_once(timeout_sec=0.05)
+            total = sum(self.recorder.received.values())
+            if total != last:
+                last, quiet_since = total, time.monotonic()
+
+
+def replay(options: ReplayOptions) -> ReplayResult:
+    return Replay(options).run()
+
+
+__all__ = ["BagInputs", "ReplayError", "ReplayOptions", "ReplayResult", "load_inputs", "replay", "resolve_inputs"]

@@ -1,0 +1,366 @@
+"""summary.json of a replay, computed from the recorded outputs alone (no ROS).
+
+``read_outputs(bag)`` gathers the output topics as arrays; ``summarize(...)`` gives the final
+resistance estimate with its standard deviations (overall and per run), the features of each run,
+the regime time shares, the dropped samples by node/topic/reason (from each node's last
+/diagnostics), the message counts per topic, and the comparison with the manufacturer values and
+(when given) with the simulated truth.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections import Counter
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .bagio import iter_bag, stamp_ns
+from .estimation.regimes import REGIME_NAMES
+from .train import TrainSpec
+
+RESISTANCE = "/train_calib/resistance"
+MEASUREMENT = "/train_calib/measurement"
+REGIME = "/train_calib/regime"
+FEATURES = "/train_calib/features"
+DIAGNOSTICS = "/diagnostics"
+WINDOW = "/train_calib/window_resistance"
+COEFFS = ("r0", "r1", "r2")
+UNITS = {"r0": "N/kg", "r1": "N/(kg m/s)", "r2": "N/(kg (m/s)^2)"}
+
+
+@dataclass
+class Outputs:
+    """The recorded outputs of a replay as arrays (SI units; t in s since the first measurement)."""
+
+    t0_ns: int = 0
+    meas: dict[str, np.ndarray] = field(default_factory=dict)  # t, s, v, run_id, speed_limit, s_measured
+    est: dict[str, np.ndarray] = field(default_factory=dict)  # t, run_id, s, v, r0..r2, std_r0..2, effort, ...
+    regime: dict[str, np.ndarray] = field(default_factory=dict)  # t, regime, v, run_id
+    features: list[dict[str, Any]] = field(default_factory=list)
+    window: dict[str, Any] | None = None  # the last well-posed /train_calib/window_resistance (window_calib_node)
+    window_count: int = 0
+    diagnostics: dict[str, dict[str, str]] = field(default_factory=dict)  # node -> last status values
+    diagnostics_level: dict[str, int] = field(default_factory=dict)
+    diagnostics_message: dict[str, str] = field(default_factory=dict)
+    counts: Counter = field(default_factory=Counter)
+
+
+def _plain(value: Any) -> Any:
+    if isinstance(value, (np.ndarray, list, tuple)):
+        return [_plain(v) for v in (value.tolist() if isinstance(value, np.ndarray) else value)]
+    if isinstance(value, (np.floating, float)):
+        return None if not math.isfinite(float(value)) else float(value)
+    if isinstance(value, (np.integer,)):
+        return int(value)
+    if isinstance(value, (np.bool_,)):
+        return bool(value)
+    return value
+
+
+def read_outputs(bag: str | Path) -> Outputs:
+    """Decode the output topics of a recorded bag (directory or output.mcap)."""
+    out = Outputs()
+    meas: list[tuple] = []
+    est: list[tuple] = []
+    reg: list[tuple] = []
+    for m in iter_bag(bag):
+        out.counts[m.topic] += 1
+        if m.topic not in (MEASUREMENT, RESISTANCE, REGIME, FEATURES, DIAGNOSTICS, WINDOW):
+            continue
+        msg = m.decode()
+        if m.topic == MEASUREMENT:
+            meas.append((stamp_ns(msg.header), msg.s, msg.v, msg.run_id, msg.speed_limit, msg.s_measured))
+        elif m.topic == RESISTANCE:
+            cov = np.asarray(msg.covariance, dtype=float).reshape(5, 5)
+            std = np.sqrt(np.maximum(np.diag(cov), 0.0))
+            est.append(
+                (stamp_ns(msg.header), msg.run_id, msg.s, msg.v, msg.r0, msg.r1, msg.r2, std[2], std[3], std[4],
+                 msg.effort, msg.acceleration, msg.health, msg.effort_known, msg.nis)
+            )  # fmt: skip
+        elif m.topic == REGIME:
+            reg.append((stamp_ns(msg.header), msg.regime, msg.v, msg.run_id))
+        elif m.topic == WINDOW:
+            out.window_count += 1
+            if not msg.ill_posed:
+                out.window = {
+                    name: _plain(getattr(msg, name))
+                    for name in ("run_id", "window_length", "sample_count", "gof_kind", "gof_value", "r0", "r1", "r2",
+                                 "a", "b", "c", "regime", "speed_span")
+                } | {"stamp_ns": stamp_ns(msg.header)}  # fmt: skip
+        elif m.topic == FEATURES:
+            f = {
+                name: _plain(getattr(msg, name))
+                for name in msg.__dataclass_fields__
+                if name not in ("header", "__msgtype__")
+            }
+            f["stamp_ns"] = stamp_ns(msg.header)
+            out.features.append(f)
+        else:
+            for status in msg.status:
+                out.diagnostics[status.name] = {kv.key: kv.value for kv in status.values}
+                level = status.level
+                out.diagnostics_level[status.name] = level[0] if isinstance(level, (bytes, bytearray)) else int(level)
+                out.diagnostics_message[status.name] = status.message
+    t0 = meas[0][0] if meas else (est[0][0] if est else 0)
+    out.t0_ns = t0
+    if meas:
+        a = list(zip(*meas))
+        out.meas = {
+            "t": (np.array(a[0], dtype=np.int64) - t0) * 1e-9,
+            "s": np.array(a[1]),
+            "v": np.array(a[2]),
+            "run_id": np.array(a[3], dtype=np.int64),
+            "speed_limit": np.array(a[4]),
+            "s_measured": np.array(a[5], dtype=bool),
+        }
+    if est:
+        a = list(zip(*est))
+        names = ("t", "run_id", "s", "v", "r0", "r1", "r2", "std_r0", "std_r1", "std_r2", "effort", "acceleration",
+                 "health", "effort_known", "nis")  # fmt: skip
+        out.est = {n: np.array(col) for n, col in zip(names, a)}
+        out.est["t"] = (np.array(a[0], dtype=np.int64) - t0) * 1e-9
+    if reg:
+        a = list(zip(*reg))
+        out.regime = {
+            "t": (np.array(a[0], dtype=np.int64) - t0) * 1e-9,
+            "regime": np.array(a[1], dtype=np.int64),
+            "v": np.array(a[2]),
+            "run_id": np.array(a[3], dtype=np.int64),
+        }
+    return out
+
+
+def dropped_counts(outputs: Outputs, what: str = "dropped") -> dict[str, dict[str, dict[str, int]]]:
+    """node -> topic -> reason -> count, from each node's last /diagnostics (``what``: dropped or repaired)."""
+    out: dict[str, dict[str, dict[str, int]]] = {}
+    for node, values in outputs.diagnostics.items():
+        for key, value in values.items():
+            topic, sep, reason = key.partition(f" {what} ")
+            if sep and topic.startswith("/"):
+                out.setdefault(node, {}).setdefault(topic, {})[reason] = int(value)
+    return out
+
+
+def filter_health(outputs: Outputs) -> dict[str, int]:
+    """ukf_node's counts per health state and the filter's counters (resets, repairs, gated positions...)."""
+    values = outputs.diagnostics.get("ukf_node", {})
+    out = {}
+    for key, value in values.items():
+        for prefix in ("health ", "filter "):
+            if key.startswith(prefix) and key != "filter health" and value.lstrip("-").isdigit():
+                out[key.replace(" ", "_")] = int(value)
+    return out
+
+
+def _estimate(est: dict[str, np.ndarray], i: int, train: TrainSpec | None, truth: dict | None) -> dict[str, Any]:
+    out: dict[str, Any] = {"t": float(est["t"][i]), "run_id": int(est["run_id"][i]), "health": int(est["health"][i])}
+    for c in COEFFS:
+        entry = {"value": float(est[c][i]), "std": float(est[f"std_{c}"][i]), "unit": UNITS[c]}
+        if train is not None:
+            ref = getattr(train.davis, c)
+            entry["manufacturer"] = ref
+            entry["vs_manufacturer"] = (entry["value"] - ref) / ref if ref else None
+        if truth is not None and c in truth:
+            entry["truth"] = truth[c]
+            entry["vs_truth"] = (entry["value"] - truth[c]) / truth[c] if truth[c] else None
+        out[c] = entry
+    return out
+
+
+def regime_shares(features: list[dict[str, Any]]) -> dict[str, float]:
+    """Time shares over all runs: each run's closing features weighted by its run time."""
+    closing = run_features(features)
+    total = sum(f["run_time"] or 0.0 for f in closing.values())
+    shares = np.zeros(len(REGIME_NAMES))
+    for f in closing.values():
+        shares += np.asarray([x or 0.0 for x in f["regime_time_share"]]) * (f["run_time"] or 0.0)
+    if total > 0:
+        shares /= total
+    return {name: float(x) for name, x in zip(REGIME_NAMES, shares)}
+
+
+def run_features(features: list[dict[str, Any]]) -> dict[int, dict[str, Any]]:
+    """run_id -> its closing features (run_complete), else its latest."""
+    out: dict[int, dict[str, Any]] = {}
+    for f in features:
+        rid = int(f["run_id"])
+        if rid not in out or not out[rid].get("run_complete"):
+            out[rid] = f
+    return out
+
+
+def summarize(
+    outputs: Outputs,
+    *,
+    train: TrainSpec | None = None,
+    truth: dict[str, float] | None = None,
+    extra: dict[str, Any] | None = None,
+) -> dict[str, Any]:
+    """The summary.json content."""
+    est = outputs.est
+    summary: dict[str, Any] = dict(extra or {})
+    if train is not None:
+        summary["train"] = {"name": train.name, "manufacturer": dict(zip(COEFFS, train.davis.as_tuple()))}
+    if est:
+        last = len(est["t"]) - 1
+        summary["final"] = _estimate(est, last, train, truth)
+        runs = []
+        features = run_features(outputs.features)
+        for rid in sorted(set(est["run_id"].tolist())):
+            idx = np.flatnonzero(est["run_id"] == rid)
+            run = {
+                "run_id": int(rid),
+                "samples": int(idx.size),
+                "t_start": float(est["t"][idx[0]]),
+                "t_end": float(est["t"][idx[-1]]),
+                "final": _estimate(est, int(idx[-1]), train, truth),
+                "effort_known_samples": int(np.count_nonzero(est["effort_known"][idx])),
+            }
+            if rid in features:
+                run["features"] = features[rid]
+            runs.append(run)
+        summary["runs"] = runs
+    else:
+        summary["final"] = None
+        summary["runs"] = []
+    if outputs.window_count:
+        window = dict(outputs.window or {})
+        if window and train is not None:
+            for c in COEFFS:
+                ref = getattr(train.davis, c)
+                window[f"{c}_vs_manufacturer"] = (window[c] - ref) / ref if ref else None
+        summary["window"] = {"messages": outputs.window_count, "last_well_posed": window or None}
+    summary["regime_share"] = regime_shares(outputs.features)
+    summary["dropped"] = dropped_counts(outputs)
+    summary["dropped_total"] = sum(n for t in summary["dropped"].values() for r in t.values() for n in r.values())
+    summary["repaired"] = dropped_counts(outputs, "repaired")
+    summary["filter"] = filter_health(outputs)
+    ingest = outputs.diagnostics.get("gnss_speed_node", {})
+    summary["ingest"] = {
+        key.replace(" ", "_").replace("(", "").replace(")", "").replace("-", "_"): ingest[key]
+        for key in (
+            "re-acquisitions",
+            "dead-reckoned measurements",
+            "reversals",
+            "clock resets",
+            "gnss delay estimate (s)",
+        )
+        if key in ingest
+    }
+    summary["diagnostics"] = {
+        node: {"level": ("OK", "WARN", "ERROR", "STALE")[min(level, 3)], "message": outputs.diagnostics_message[node]}
+        for node, level in outputs.diagnostics_level.items()
+    }
+    summary["output_counts"] = dict(outputs.counts)
+    if truth is not None:
+        summary["truth"] = truth
+    return summary
+
+
+def write_summary(path: str | Path, summary: dict[str, Any]) -> None:
+    Path(path).write_text(json.dumps(_plain_tree(summary), indent=2) + "\n", encoding="utf-8")
+
+
+def _plain_tree(value: Any) -> Any:
+    if isinstance(value, dict):
+        return {str(k): _plain_tree(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple, np.ndarray)):
+        return [_plain_tree(v) for v in (value.tolist() if isinstance(value, np.ndarray) else value)]
+    return _plain(value)
+
+
+def format_summary(summary: dict[str, Any]) -> str:
+    """A readable text version (the demo prints it)."""
+    lines = []
+    final = summary.get("final")
+    train = summary.get("train", {})
+    if final:
+        has_truth = any("truth" in final[c] for c in COEFFS)
+        head = f"{'':4}{'estimate':>12} {'+- std':>10} {'manufacturer':>13} {'vs manuf.':>10}"
+        head += f" {'truth':>11} {'vs truth':>9}" if has_truth else ""
+        lines.append(
+            f"Running resistance after the last sample (train {train.get('name', '?')}, run {final['run_id']}):"
+        )
+        lines.append(head)
+        for c in COEFFS:
+            e = final[c]
+            row = f"{c:4}{e['value']:12.4e} {e['std']:10.2e}"
+            if "manufacturer" in e:
+                row += f" {e['manufacturer']:13.4e} {_pct(e.get('vs_manufacturer')):>10}"
+            if has_truth:
+                row += f" {e.get('truth', float('nan')):11.4e} {_pct(e.get('vs_truth')):>9}"
+            lines.append(row + f"  {UNITS[c]}")
+    shares = summary.get("regime_share", {})
+    if shares:
+        lines.append(
+            "Regime time shares: "
+            + ", ".join(f"{name} {100 * shares[name]:.1f} %" for name in REGIME_NAMES[1:] if name in shares)
+            + (f", standing/unknown {100 * shares.get('unknown', 0.0):.1f} %" if shares.get("unknown") else "")
+        )
+    for run in summary.get("runs", []):
+        f = run.get("features")
+        if not f:
+            continue
+        distance_km = (f["run_distance"] or 0.0) / 1000.0
+        parts = [f"run {run['run_id']}: {run['samples']} samples, {f['run_time'] or 0:.0f} s, {distance_km:.1f} km"]
+        if f.get("cruise_speed") is not None:
+            parts.append(f"cruise {3.6 * f['cruise_speed']:.0f} km/h")
+        if f.get("max_tractive_effort") is not None:
+            parts.append(f"max tractive effort {f['max_tractive_effort']:.3f} N/kg")
+        if f.get("max_tractive_power") is not None:
+            parts.append(f"max tractive power {f['max_tractive_power']:.2f} W/kg")
+        if f.get("final_coast_duration") is not None:
+            parts.append(f"final coast {f['final_coast_duration']:.0f} s")
+        if f.get("final_brake_duration") is not None:
+            parts.append(f"final brake {f['final_brake_duration']:.0f} s")
+        means = [m for m in f.get("brake_rate_mean", []) if m is not None]
+        if means:
+            parts.append("brake rates " + "/".join(f"{m:.2f}" for m in means) + " m/s^2")
+        lines.append("  " + ", ".join(parts))
+    window = summary.get("window")
+    if window:
+        w = window.get("last_well_posed")
+        if w:
+            lines.append(
+                f"Sliding-window calibration ({window['messages']} windows): last well-posed {w['window_length']:g} s "
+                f"window r0 {w['r0']:.4e}, r1 {w['r1']:.4e}, r2 {w['r2']:.4e}"
+            )
+        else:
+            lines.append(f"Sliding-window calibration: {window['messages']} windows, none well posed")
+    dropped = summary.get("dropped", {})
+    total = summary.get("dropped_total", 0)
+    detail = "; ".join(
+        f"{topic} " + ", ".join(f"{r} {n}" for r, n in reasons.items())
+        for node in dropped.values()
+        for topic, reasons in node.items()
+    )
+    lines.append(f"Dropped samples: {total}" + (f" ({detail})" if detail else ""))
+    repaired = "; ".join(
+        f"{topic} " + ", ".join(f"{r} {n}" for r, n in reasons.items())
+        for node in summary.get("repaired", {}).values()
+        for topic, reasons in node.items()
+    )
+    if repaired:
+        lines.append(f"Repaired samples (used): {repaired}")
+    health = summary.get("filter", {})
+    resets = health.get("health_reset", 0) + health.get("health_repaired", 0)
+    if resets:
+        lines.append(
+            f"Filter: {health.get('health_reset', 0)} resets, {health.get('health_repaired', 0)} repairs, "
+            f"{health.get('health_degraded', 0)} degraded steps"
+        )
+    if summary.get("input_error"):
+        lines.append(f"Input: {summary['input_error']}")
+    return "\n".join(lines)
+
+
+def _pct(x: float | None) -> str:
+    return "" if x is None else f"{100 * x:+.1f} %"
+
+
+__all__ = ["Outputs", "dropped_counts", "filter_health", "format_summary", "read_outputs", "regime_shares",
+           "run_features", "summarize", "write_summary"]  # fmt: skip
