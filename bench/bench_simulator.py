@@ -3,8 +3,11 @@
 Besinovic et al. (2013), Section 4: "The integration of a single train trajectory takes about
 0.02 s" (MATLAB, AMD Athlon 3.3 GHz). Measured here, medians over repeats:
 
-- ``running_time_profile``: the fast minimum-time model the genetic algorithm calls (warm: the
-  per-track preparation is cached, as in a calibration), and cold (first call on a track);
+- ``running_time_profile``: the fast minimum-time model (warm: the per-track preparation is
+  cached, as in a calibration), and cold (first call on a track);
+- ``running_time_batch``: the same model for a population of 48 parameter vectors in one call (what
+  the calibration's differential evolution calls once per generation), per call and per trajectory,
+  and for one vector;
 - the realistic driver: the trajectory alone (planning + integration) and the whole
   ``simulate_run`` (sensors, truth at the samples and on the 0.5 s grid).
 
@@ -28,6 +31,7 @@ from train_calib.sim.drive import Drive
 from train_calib.sim.limits import SpeedCeiling
 from train_calib.sim.model import TrackTerms
 from train_calib.sim.running_time import _CACHE
+from train_calib.sim.running_time_batch import running_time_batch
 from train_calib.sim.simulator import make_model
 from train_calib.track import load_track
 from train_calib.train import load_train
@@ -68,8 +72,29 @@ def main() -> int:
         ),
         ("running_time_profile, 32.1 km (cold)", median_time(cold, args.repeats)),
     ]
-    rng = np.random.default_rng([2022, 0])
-    driver = DriverParams.sample(rng, train=train)
+    # a population like the calibration's: 48 vectors drawn in the bundled calibration bounds
+    rng = np.random.default_rng(0)
+    pop = dict(
+        c0=rng.uniform(0.2, 0.7, 48),
+        c2=rng.uniform(2.5, 12.0, 48),
+        r0=rng.uniform(0.010, 0.025, 48),
+        r2=rng.uniform(1.5e-5, 5.0e-5, 48),
+        b_limit=rng.uniform(0.24, 0.9, 48),
+        theta_cruise=rng.uniform(0.8, 1.02, 48),
+    )
+    nobatch = params.replace(adhesive_mass_fraction=0.0)
+    wall, cpu = median_time(lambda: running_time_batch(track, nobatch, s0, s1, **pop), args.repeats)
+    rows.append(("running_time_batch, 48 vectors, one call", (wall, cpu)))
+    rows.append(("running_time_batch, 48 vectors, per trajectory", (wall / 48, cpu / 48)))
+    scalar48 = [nobatch.replace(**{k: float(v[i]) for k, v in pop.items()}) for i in range(48)]
+    wall, cpu = median_time(
+        lambda: [running_time_profile(track, p, s0, s1) for p in scalar48], max(3, args.repeats // 5)
+    )
+    rows.append(("running_time_profile, the same 48, per trajectory", (wall / 48, cpu / 48)))
+    rows.append(
+        ("running_time_batch, 1 vector", median_time(lambda: running_time_batch(track, params, s0, s1), args.repeats))
+    )
+    driver = DriverParams.sample(np.random.default_rng([2022, 0]), train=train)
     terms = TrackTerms(track, train.length_m)
     model = make_model(train, terms, train.davis, driver)
     ceiling = SpeedCeiling(track, train.length_m, s0, s1, train.max_speed_kmh * KMH)

@@ -5,7 +5,10 @@ Arguments (``name:=value``):
   track          track file or bundled track name (overrides track_file of the params file)
   train          train file or bundled train name (overrides train_file)
   use_sim_time   true when a bag is played with --clock (default false)
-  window         true to also start window_calib_node (needs /train/traction_power)
+  traction_power true when the train publishes /train/traction_power: starts window_calib_node (default false)
+  window         auto (default: as traction_power says), true or false: start window_calib_node or not
+  ukf_preset     paper (default: Table 1, the params file's values) or converging (adds config/ukf_converging.yaml
+                 for ukf_node, after params_file)
   namespace      namespace of the nodes (default none)
 
 ``describe()`` gives the same graph as plain data without importing ``launch`` (used by the tests).
@@ -28,47 +31,83 @@ ARGUMENTS = {
     "track": ("", "track file or bundled track name (empty: track_file of the params file)"),
     "train": ("", "train file or bundled train name (empty: train_file of the params file)"),
     "use_sim_time": ("false", "use /clock (bag playback with --clock)"),
-    "window": ("false", "also start window_calib_node (needs traction power)"),
+    "traction_power": ("false", "the train publishes /train/traction_power: start window_calib_node"),
+    "window": ("auto", "start window_calib_node: auto (when traction_power is true), true or false"),
+    "ukf_preset": ("paper", "ukf_node preset: paper (Table 1, the params file) or converging (ukf_converging.yaml)"),
     "namespace": ("", "namespace of the nodes"),
 }
+UKF_PRESETS = ("paper", "converging")
+TRUE = ("true", "1", "yes", "on")
+FALSE = ("false", "0", "no", "off")
 
 
-def default_params_file() -> str:
-    """The installed config/train_calib.yaml, else the source tree's."""
+def config_file(name: str) -> str:
+    """The installed config/<name>, else the source tree's."""
     try:
         from ament_index_python.packages import get_package_share_directory
 
-        candidate = Path(get_package_share_directory(PACKAGE)) / "config" / "train_calib.yaml"
+        candidate = Path(get_package_share_directory(PACKAGE)) / "config" / name
         if candidate.is_file():
             return str(candidate)
     except Exception:
         pass
-    return str(Path(__file__).resolve().parent.parent / "config" / "train_calib.yaml")
+    return str(Path(__file__).resolve().parent.parent / "config" / name)
+
+
+def default_params_file() -> str:
+    """The installed config/train_calib.yaml, else the source tree's."""
+    return config_file("train_calib.yaml")
+
+
+def flag(name: str, text: str | bool, allow_auto: bool = False) -> bool | None:
+    """A launch argument's boolean (None for auto); ValueError naming the argument otherwise."""
+    if isinstance(text, bool):
+        return text
+    value = str(text).strip().lower()
+    if value in TRUE:
+        return True
+    if value in FALSE:
+        return False
+    if allow_auto and value == "auto":
+        return None
+    choices = "true, false" + (", auto" if allow_auto else "")
+    raise ValueError(f"launch argument {name}: {text!r} is not one of {choices}")
 
 
 def describe(
     params_file: str = "",
     track: str = "",
     train: str = "",
-    use_sim_time: bool = False,
-    window: bool = False,
+    use_sim_time: bool | str = False,
+    window: bool | str | None = None,
     namespace: str = "",
+    traction_power: bool | str = False,
+    ukf_preset: str = "paper",
 ) -> list[dict]:
-    """The nodes to start, as plain data: package, executable, name, namespace, parameters."""
+    """The nodes to start, as plain data: package, executable, name, namespace, parameters (files in order,
+    then the overrides). window None / "auto": window_calib_node when traction_power is true."""
+    run_window = flag("window", window, allow_auto=True) if window is not None else None
+    if run_window is None:
+        run_window = flag("traction_power", traction_power)
+    if ukf_preset not in UKF_PRESETS:
+        raise ValueError(f"launch argument ukf_preset: {ukf_preset!r} is not one of {', '.join(UKF_PRESETS)}")
     nodes = []
-    for name in GRAPH + (OPTIONAL if window else ()):
-        overrides: dict = {"use_sim_time": bool(use_sim_time)}
+    for name in GRAPH + (OPTIONAL if run_window else ()):
+        overrides: dict = {"use_sim_time": flag("use_sim_time", use_sim_time)}
         for key in FILE_PARAMETERS.get(name, ()):
             value = track if key == "track_file" else train
             if value:
                 overrides[key] = value
+        files = [params_file or default_params_file()]
+        if name == "ukf_node" and ukf_preset != "paper":
+            files.append(config_file(f"ukf_{ukf_preset}.yaml"))
         nodes.append(
             {
                 "package": PACKAGE,
                 "executable": name,
                 "name": name,
                 "namespace": namespace,
-                "parameters": [params_file or default_params_file(), overrides],
+                "parameters": [*files, overrides],
             }
         )
     return nodes
@@ -85,9 +124,11 @@ def _nodes(context):
         params_file=arg("params_file"),
         track=arg("track"),
         train=arg("train"),
-        use_sim_time=arg("use_sim_time").lower() in ("true", "1", "yes"),
-        window=arg("window").lower() in ("true", "1", "yes"),
+        use_sim_time=arg("use_sim_time"),
+        window=arg("window"),
         namespace=arg("namespace"),
+        traction_power=arg("traction_power"),
+        ukf_preset=arg("ukf_preset"),
     )
     return [
         Node(

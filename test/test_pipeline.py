@@ -1,6 +1,9 @@
-"""The offline pipeline: the chain of the nodes without ROS, checked against the estimator's whole-run APIs."""
+"""The offline pipeline: the chain of the nodes without ROS, checked against the estimator's and the window
+calibration's whole-run APIs."""
 
 from __future__ import annotations
+
+import dataclasses
 
 import numpy as np
 import pytest
@@ -52,7 +55,10 @@ def test_chain_equals_the_whole_run_apis_of_the_estimator(track_train, measureme
     for name in ("s", "v", "r0", "r1", "r2", "effort", "acceleration", "nis", "health"):
         assert np.array_equal([getattr(e, name) for e in out.estimates], getattr(series, name)), name
     assert np.array_equal(np.array([e.covariance for e in out.estimates]), series.covariance)
-    regimes = classify_regimes(series.effort, series.acceleration, speed=series.v)
+    w = series.resistance + series.track_force  # the force the effort works against (regime_node passes it)
+    regimes = classify_regimes(
+        series.effort, series.acceleration, speed=series.v, effort_known=series.effort_known, opposing_force=w
+    )
     assert np.array_equal([r.regime for r in out.regimes], regimes)
     assert {TRACTION, COASTING} <= set(regimes.tolist())
     closing = [f for f in out.features if f.run_complete]
@@ -79,6 +85,59 @@ def test_run_bag_is_ingest_then_chain(track_train, measurements):
         - out.ingest_stats.dropped["speed"]["no_position"]
     )
     assert dropped == sum(sum(c.values()) for c in out.ingest_stats.dropped.values())
+
+
+@pytest.fixture(scope="module")
+def synthetic(tmp_path_factory):
+    """The nodes tests' synthetic bag (1 Hz, traction power, two runs) without bad samples, its track and train."""
+    import sys
+    from pathlib import Path
+
+    from repo_paths import DATA
+
+    sys.path.insert(0, str(Path(__file__).parent / "nodes"))
+    from synthetic_bag import write_bag
+
+    bag = write_bag(tmp_path_factory.mktemp("synthetic") / "bag", bad=False)
+    return bag, load_track(DATA / "small_track.yaml"), load_train(DATA / "small_train.yaml")
+
+
+def test_regimes_get_effort_known_and_the_opposing_force(synthetic):
+    """regime_node's call (classify_estimate): with traction power and the converging filter the effort is known on
+    many samples, and the keywords change the regimes (so they are really passed)."""
+    bag, track, train = synthetic
+    out = run_bag(bag, track, train, ukf=UKFConfig.converging(), window=False)
+    e = out.estimates
+    effort, accel, v = ([getattr(x, n) for x in e] for n in ("effort", "acceleration", "v"))
+    known = [x.effort_known for x in e]
+    w = [x.resistance + x.track_force for x in e]
+    with_keywords = classify_regimes(effort, accel, speed=v, effort_known=known, opposing_force=w)
+    assert [r.regime for r in out.regimes] == with_keywords.tolist()
+    plain = classify_regimes(effort, accel, speed=v)
+    assert sum(known) > 50 and np.count_nonzero(plain != with_keywords) > 10  # measured: 87 known, 27 differ
+
+
+def test_window_calibration_after_the_regime_equals_calibrate_series(synthetic, tmp_path):
+    """Pipeline's window results (window_calib_node's) == WindowCalibrator over the measurements with the pipeline's
+    regimes; without power there are none, and window=False leaves it out."""
+    from synthetic_bag import write_bag
+
+    from train_calib.window import WindowConfig, calibrate_series
+
+    bag, track, train = synthetic
+    config = WindowConfig(window_length=30.0, gof="sae", max_relative_error=1e3)  # the kinematic profile: noise
+    out = run_bag(bag, track, train, window=config)
+    assert len(out.estimates) == len(out.measurements)  # no measurement rejected: one regime each
+    series = MeasurementSeries.from_measurements(out.measurements)
+    expected = calibrate_series(series, train, config, regimes=[r.regime for r in out.regimes])
+    assert len(out.windows) == len(expected) > 300
+    for got, want in zip(out.windows, expected):  # every field exactly, NaN equal to NaN
+        for f in dataclasses.fields(got):
+            x, y = np.asarray(getattr(got, f.name)), np.asarray(getattr(want, f.name))
+            assert x.shape == y.shape and np.all((x == y) | (x != x) & (y != y)), f.name
+    assert any(not f.ill_posed for f in out.windows)
+    assert run_bag(bag, track, train, window=False).windows == []
+    assert run_bag(write_bag(tmp_path / "nopower", power=False, bad=False), track, train).windows == []
 
 
 class _Sample:

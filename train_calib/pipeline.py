@@ -1,9 +1,12 @@
-"""The node graph's chain without ROS: Ingest -> ResistanceEstimator -> RegimeClassifier -> features.
+"""The node graph's chain without ROS: Ingest -> ResistanceEstimator -> RegimeClassifier -> features, and the
+sliding-window calibration with traction power (WindowCalibrator) after the regime.
 
 ``Pipeline`` does per sample exactly what the nodes do per message (the same core objects, called in
 the same order with the same values), so replaying a bag through the graph and running
 ``run_bag(bag)`` on it give the same numbers, message for message; a test checks this. Use it for
 offline work on bags or on a MeasurementSeries, and as the reference of the graph.
+
+:func:`classify_estimate` is regime_node's call of the classifier (shared, so the two cannot drift).
 
 :class:`FeatureStream` is the feature node's publication rule (shared with ``feature_node``): features
 on each regime change, and once with ``run_complete`` when the run ends (next run_id, end of input).
@@ -32,6 +35,7 @@ from .ingest import Ingest, IngestConfig, IngestStats, fix_from_msg, power_from_
 from .measurement import Measurement, MeasurementSeries
 from .track import Track
 from .train import Davis, TrainSpec
+from .window import WindowCalibrator, WindowConfig, WindowFit
 
 
 @dataclass
@@ -45,6 +49,23 @@ class RegimeRecord:
     v: float
     effort: float
     acceleration: float
+
+
+def classify_estimate(classifier: RegimeClassifier, estimate: Any) -> int:
+    """The driving regime of one estimate, as regime_node and :class:`Pipeline` classify it.
+
+    `estimate` has ``effort`` (N/kg), ``acceleration`` (m/s^2), ``v`` (m/s), ``effort_known`` and ``resistance``
+    + ``track_force`` (N/kg; an EstimateSample or a ResistanceEstimate as a ``RegimeInput``). The classifier
+    gets ``effort_known`` and ``opposing_force`` = resistance + track_force, the force the effort works
+    against: with them the HMM uses the exact r + g on every sample and, where the effort comes from measured
+    traction power, the instantaneous net acceleration effort - (r + g) (docs/estimator.md, Regimes). Fields
+    that are None are not passed.
+    """
+    resistance, track_force = estimate.resistance, estimate.track_force
+    w = None if resistance is None or track_force is None else resistance + track_force
+    return classifier.classify(
+        estimate.effort, estimate.acceleration, estimate.v, effort_known=estimate.effort_known, opposing_force=w
+    )
 
 
 class FeatureStream:
@@ -92,6 +113,7 @@ class PipelineOutput:
     estimates: list[EstimateSample] = field(default_factory=list)
     regimes: list[RegimeRecord] = field(default_factory=list)
     features: list[Features] = field(default_factory=list)
+    windows: list[WindowFit] = field(default_factory=list)  # /train_calib/window_resistance (with traction power)
     ingest_stats: IngestStats | None = None
 
     @property
@@ -100,7 +122,13 @@ class PipelineOutput:
 
 
 class Pipeline:
-    """Online chain of the core boxes; feed ingest events (or measurements), then ``end_of_input()``."""
+    """Online chain of the core boxes; feed ingest events (or measurements), then ``end_of_input()``.
+
+    ``window``: the sliding-window calibration as window_calib_node runs it -- True (the default: WindowConfig()),
+    a WindowConfig, or False (the graph without window_calib_node). It yields results only for measurements that
+    carry traction power, so with the default the pipeline equals the replay's graph, which starts
+    window_calib_node when the bag has /train/traction_power.
+    """
 
     def __init__(
         self,
@@ -113,11 +141,15 @@ class Pipeline:
         features: FeatureConfig | None = None,
         initial: Davis | None = None,
         safeguards: SafeguardConfig | None = None,
+        window: WindowConfig | bool = True,
     ) -> None:
         self.ingest = Ingest(track, train, ingest) if track is not None else None
         self.estimator = ResistanceEstimator(train, ukf, initial, safeguards)
         self.classifier = RegimeClassifier(regime)
         self.features = FeatureStream(features)
+        self.window: WindowCalibrator | None = None
+        if window is not False:
+            self.window = WindowCalibrator(train, WindowConfig() if window is True else window)
         self.out = PipelineOutput(ingest_stats=self.ingest.stats if self.ingest is not None else None)
 
     def add_event(self, event: Any) -> None:
@@ -139,12 +171,20 @@ class Pipeline:
         out = self.out
         out.measurements.append(m)
         e = self.estimator.update(m)
-        if self.estimator.rejected is not None:  # ukf_node drops it: nothing published downstream
+        if self.estimator.rejected is not None:  # ukf_node drops it: no estimate, no regime
+            self._window(m, None)  # window_calib_node uses it without a regime (from power) once a later one comes
             return
         out.estimates.append(e)
-        regime = self.classifier.classify(e.effort, e.acceleration, e.v)
+        regime = classify_estimate(self.classifier, e)
         out.regimes.append(RegimeRecord(e.stamp_ns, e.run_id, regime, e.s, e.v, e.effort, e.acceleration))
         out.features += self.features.update(e, regime)
+        self._window(m, regime)
+
+    def _window(self, m: Measurement, regime: int | None) -> None:
+        if self.window is not None:
+            fit = self.window.update(m, regime)
+            if fit is not None:
+                self.out.windows.append(fit)
 
     def end_of_input(self) -> PipelineOutput:
         """What the replay does at the end: the ingest releases held samples, then the run is closed."""
@@ -185,6 +225,7 @@ __all__ = [
     "PipelineOutput",
     "RegimeRecord",
     "bag_messages",
+    "classify_estimate",
     "run_bag",
     "run_measurements",
 ]

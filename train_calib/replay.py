@@ -14,6 +14,14 @@ history depth, so nothing is lost at any rate. At the end the graph is drained, 
 of input in chain order (the ingest releases held samples, the feature node closes the run), the nodes
 publish their final /diagnostics and the recording is closed.
 
+Nodes downstream of the head hold samples only while they wait for another graph topic (window_calib_node
+joins each measurement with its regime and, on board, gives up after ``max_regime_wait`` samples): the replay
+does not let such a node hold more than ``max_held`` samples while the graph still has messages in flight, so
+a slow node never makes another fall back on its time-out, and the result does not depend on scheduling.
+
+window_calib_node runs when the bag has ``/train/traction_power`` (``window=None``, the default), or as
+``window`` True/False forces.
+
 Nodes run in this process on one executor (the rclpy EventsExecutor when available, else the
 SingleThreadedExecutor), or each in its own process (``processes=True``), watched through
 ``/train_calib/progress``.
@@ -25,15 +33,15 @@ import signal
 import threading
 import time
 from collections import Counter
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from . import paths
-from .bagio import INPUT_TOPICS, OUTPUT_TOPICS, BagDamage, bag_topics, iter_bag, typestore
+from .bagio import INPUT_TOPICS, OUTPUT_TOPICS, POWER_TOPIC, BagDamage, bag_topics, iter_bag, typestore
 from .errors import BagError, ConfigError, TrainCalibError
-from .nodes.config import GRAPH_NODES
+from .nodes.config import GRAPH_NODES, WINDOW_NODE
 from .record import METADATA_FILE, OUTPUT_FILE, qos_dict
 from .track import load_track
 from .train import load_train
@@ -62,10 +70,12 @@ class ReplayOptions:
     processes: bool = False
     params_files: tuple[Path, ...] = ()
     nodes: tuple[str, ...] = GRAPH_NODES
+    window: bool | None = None  # window_calib_node: None = when the bag has /train/traction_power; True/False force
     clock_hz: float = DEFAULT_CLOCK_HZ
     executor: str = "events"  # in one process: events or single
     wait_for_subscribers: int = 0  # extra subscribers (e.g. a DAS) every output must have before starting
     max_lag: int = 200
+    max_held: int = 10  # samples a node downstream of the head may hold while the graph has messages in flight
     overwrite: bool = False
     log: Callable[[str], None] | None = None
     on_input: Callable[[str, int, int], None] | None = None  # (topic, stamp... log time ns, wall ns) hook
@@ -84,6 +94,7 @@ class ReplayResult:
     bag_duration_s: float
     mode: str
     executor: str
+    nodes: tuple[str, ...] = ()
     interrupted: bool = False
     max_behind_s: float = 0.0  # finite rate: the furthest a message was published after its due time
     stream_s: float = 0.0  # wall time from the first input published to the graph having handled the last
@@ -139,6 +150,14 @@ def load_inputs(bag: str | Path) -> BagInputs:
     return BagInputs(present, messages, error, dict(undecodable))
 
 
+def graph_nodes(nodes: Sequence[str], window: bool | None, input_topics: Iterable[str]) -> tuple[str, ...]:
+    """The nodes to start: `nodes`, plus window_calib_node when `window` is True, or None and the bag has traction
+    power; without it when `window` is False."""
+    wanted = (POWER_TOPIC in set(input_topics)) if window is None else window
+    base = tuple(n for n in nodes if n != WINDOW_NODE)
+    return (*base, WINDOW_NODE) if wanted else base
+
+
 def resolve_inputs(track: str, train: str) -> tuple[Path, Path]:
     """Paths of the track and train files (a path or a bundled name); loads them to fail early in one line."""
     track_path, train_path = paths.track_file(track), paths.train_file(train)
@@ -183,6 +202,7 @@ class Replay:
         for f in o.params_files:
             load_yaml_mapping(f, "params file")
         inputs = load_inputs(o.bag)
+        self.node_names = graph_nodes(o.nodes, o.window, inputs.topics)
         if o.until_s is not None:
             end = inputs.messages[0][1] + int(o.until_s * 1e9)
             inputs = BagInputs(inputs.topics, [m for m in inputs.messages if m[1] <= end])
@@ -238,11 +258,11 @@ class Replay:
         sent: Counter[str] = Counter()
         try:
             if o.graph_factory is not None:
-                graph = o.graph_factory(context, o.nodes, overrides, o.params_files)
+                graph = o.graph_factory(context, self.node_names, overrides, o.params_files)
             elif o.processes:
-                graph = ProcessGraph(self.node, o.nodes, overrides | {"report_progress": True}, o.params_files)
+                graph = ProcessGraph(self.node, self.node_names, overrides | {"report_progress": True}, o.params_files)
             else:
-                graph = InProcessGraph(context, o.nodes, overrides, o.params_files)
+                graph = InProcessGraph(context, self.node_names, overrides, o.params_files)
             self.graph = graph
             extra += list(o.extra_nodes(context)) if o.extra_nodes is not None else []
             for n in (self.node, rec_node, *getattr(graph, "nodes", {}).values(), *extra):
@@ -254,7 +274,7 @@ class Replay:
                 interrupted = True
             self._log(
                 f"replaying {len(inputs.messages)} messages ({inputs.duration_s:.0f} s of bag time) through "
-                f"{', '.join(o.nodes)} ({'one process per node' if o.processes else 'one process'}, "
+                f"{', '.join(graph.names)} ({'one process per node' if o.processes else 'one process'}, "
                 f"rate {'max' if o.rate == 0 else f'{o.rate:g}x'})"
             )
             try:
@@ -308,6 +328,7 @@ class Replay:
             bag_duration_s=inputs.duration_s,
             mode="processes" if o.processes else "one process",
             executor=executor_name,
+            nodes=tuple(graph.names),
             interrupted=interrupted,
             max_behind_s=max_behind,
             stream_s=stream_s,
@@ -381,7 +402,7 @@ class Replay:
 
     def _wait_connected(self, graph: Any) -> None:
         extra = 1 + self.o.wait_for_subscribers
-        n_nodes = len(self.o.nodes)
+        n_nodes = len(graph.names)
 
         def ready() -> bool:
             return (
@@ -392,7 +413,7 @@ class Replay:
 
         def what() -> str:
             progress = graph.progress()
-            missing = [n for n in self.o.nodes if n not in progress]
+            missing = [n for n in graph.names if n not in progress]
             if missing:
                 return f"nodes to start: {', '.join(missing)}"
             expected = graph.subscribers_expected(extra)
@@ -410,6 +431,8 @@ class Replay:
         o = self.o
         ingest = "gnss_speed_node"
         handled = self._handled_reader(graph, ingest)
+        held = self._held_reader(graph, [n for n in graph.names if n != ingest])
+        recorded = self.recorder.received
         t0 = inputs.messages[0][1]
         wall0 = time.monotonic()
         max_behind = 0.0
@@ -424,10 +447,12 @@ class Replay:
                     self.executor.spin_once(timeout_sec=min(due - now, 1.0 / o.clock_hz))
                 max_behind = max(max_behind, time.monotonic() - due)
             self._publish_clock(t_ns)
-            if k % check_lag_every == 0 and graph.lag(self.recorder.received) > o.max_lag:
+            if (k % check_lag_every == 0 and graph.lag(recorded) > o.max_lag) or held() > o.max_held:
                 self._spin_until(
-                    lambda: graph.lag(self.recorder.received) <= o.max_lag // 2,
-                    lambda: f"the graph to catch up (lag {graph.lag(self.recorder.received)})",
+                    lambda: (
+                        graph.lag(recorded) <= o.max_lag // 2 and (held() <= o.max_held // 2 or graph.settled(recorded))
+                    ),
+                    lambda: f"the graph to catch up (lag {graph.lag(recorded)}, {held()} samples held)",
                     graph,
                 )
             self.pubs[topic].publish(data)
@@ -455,6 +480,19 @@ class Replay:
 
         return from_progress
 
+    def _held_reader(self, graph: Any, names: Sequence[str]) -> Callable[[], int]:
+        """The largest number of samples held by one of `names` (waiting for another graph topic)."""
+        nodes = getattr(graph, "nodes", None)
+        if nodes is not None:
+            watched = [nodes[n] for n in names if n in nodes]
+            return lambda: max((node.pending for node in watched), default=0)
+
+        def from_progress() -> int:
+            progress = graph.progress()
+            return max((progress[n].pending for n in names if n in progress), default=0)
+
+        return from_progress
+
     def _end_of_input(
         self, graph: Any, sent: Counter, interruptible: bool = True, timeout_s: float = STALL_TIMEOUT_S
     ) -> None:
@@ -469,7 +507,7 @@ class Replay:
             timeout_s=timeout_s,
             interruptible=interruptible,
         )
-        for name in self.o.nodes:
+        for name in graph.names:
             graph.end_of_input(name)
             self._spin_until(
                 lambda name=name: (
@@ -512,4 +550,13 @@ def replay(options: ReplayOptions) -> ReplayResult:
     return Replay(options).run()
 
 
-__all__ = ["BagInputs", "ReplayError", "ReplayOptions", "ReplayResult", "load_inputs", "replay", "resolve_inputs"]
+__all__ = [
+    "BagInputs",
+    "ReplayError",
+    "ReplayOptions",
+    "ReplayResult",
+    "graph_nodes",
+    "load_inputs",
+    "replay",
+    "resolve_inputs",
+]

@@ -2,7 +2,8 @@
 
 ``read_outputs(bag)`` gathers the output topics as arrays; ``summarize(...)`` gives the final
 resistance estimate with its standard deviations (overall and per run), the features of each run,
-the regime time shares, the dropped samples by node/topic/reason (from each node's last
+the regime time shares, the sliding-window calibration (window_calib_node: the last well-posed window,
+counts, per-regime statistics), the dropped samples by node/topic/reason (from each node's last
 /diagnostics), the message counts per topic, and the comparison with the manufacturer values and
 (when given) with the simulated truth.
 """
@@ -21,6 +22,7 @@ import numpy as np
 from .bagio import iter_bag, stamp_ns
 from .estimation.regimes import REGIME_NAMES
 from .train import TrainSpec
+from .window import GOF_KINDS, WindowFit, summarize_by_regime
 
 RESISTANCE = "/train_calib/resistance"
 MEASUREMENT = "/train_calib/measurement"
@@ -30,6 +32,9 @@ DIAGNOSTICS = "/diagnostics"
 WINDOW = "/train_calib/window_resistance"
 COEFFS = ("r0", "r1", "r2")
 UNITS = {"r0": "N/kg", "r1": "N/(kg m/s)", "r2": "N/(kg (m/s)^2)"}
+REFERENCE_SPEEDS_KMH = (40.0, 80.0, 120.0)
+WINDOW_FIELDS = ("run_id", "window_length", "sample_count", "gof_kind", "gof_value", "a", "b", "c", "r0", "r1", "r2",
+                 "regime", "ill_posed", "speed_span")  # fmt: skip
 
 
 @dataclass
@@ -43,6 +48,7 @@ class Outputs:
     features: list[dict[str, Any]] = field(default_factory=list)
     window: dict[str, Any] | None = None  # the last well-posed /train_calib/window_resistance (window_calib_node)
     window_count: int = 0
+    windows: list[WindowFit] = field(default_factory=list)  # every /train_calib/window_resistance, in order
     diagnostics: dict[str, dict[str, str]] = field(default_factory=dict)  # node -> last status values
     diagnostics_level: dict[str, int] = field(default_factory=dict)
     diagnostics_message: dict[str, str] = field(default_factory=dict)
@@ -85,12 +91,11 @@ def read_outputs(bag: str | Path) -> Outputs:
             reg.append((stamp_ns(msg.header), msg.regime, msg.v, msg.run_id))
         elif m.topic == WINDOW:
             out.window_count += 1
-            if not msg.ill_posed:
-                out.window = {
-                    name: _plain(getattr(msg, name))
-                    for name in ("run_id", "window_length", "sample_count", "gof_kind", "gof_value", "r0", "r1", "r2",
-                                 "a", "b", "c", "regime", "speed_span")
-                } | {"stamp_ns": stamp_ns(msg.header)}  # fmt: skip
+            fit = window_fit_from_msg(msg)
+            out.windows.append(fit)
+            if not fit.ill_posed:
+                out.window = {name: _plain(getattr(fit, name)) for name in WINDOW_FIELDS if name != "ill_posed"}
+                out.window["stamp_ns"] = fit.stamp_ns
         elif m.topic == FEATURES:
             f = {
                 name: _plain(getattr(msg, name))
@@ -131,6 +136,73 @@ def read_outputs(bag: str | Path) -> Outputs:
             "v": np.array(a[2]),
             "run_id": np.array(a[3], dtype=np.int64),
         }
+    return out
+
+
+def window_fit_from_msg(msg: Any) -> WindowFit:
+    """A WindowResistance message as a WindowFit (``estimate`` = the published r0, r1, r2 of a well-posed window)."""
+    values = {name: getattr(msg, name) for name in WINDOW_FIELDS}
+    values = {k: (bool(v) if k == "ill_posed" else int(v) if isinstance(v, (int, np.integer)) else float(v))
+              for k, v in values.items()}  # fmt: skip
+    if not values["ill_posed"]:
+        values["estimate"] = (values["r0"], values["r1"], values["r2"])
+    return WindowFit(stamp_ns=stamp_ns(msg.header), **values)
+
+
+def window_summary(
+    windows: list[WindowFit], train: TrainSpec | None = None, truth: dict[str, float] | None = None
+) -> dict[str, Any]:
+    """summary.json's ``window``: counts, the last well-posed window (A, B, C in N units, r0, r1, r2 per unit of
+    effective mass, window length, GoF; r(v) at 40/80/120 km/h against the manufacturer values and the truth) and
+    the per-regime statistics of De Martinis & Corman Section 5.3 over the well-posed windows."""
+    well = [f for f in windows if not f.ill_posed]
+    last = windows[-1] if windows else None
+    out: dict[str, Any] = {
+        "messages": len(windows),
+        "well_posed": len(well),
+        "ill_posed": len(windows) - len(well),
+        "window_length_s": last.window_length if last else None,
+        "gof": GOF_KINDS[last.gof_kind] if last and 0 <= last.gof_kind < len(GOF_KINDS) else None,
+        "last_well_posed": None,
+        "by_regime": {},
+    }
+    if train is not None:
+        for regime, st in summarize_by_regime(windows, train.effective_mass_kg).items():
+            name = REGIME_NAMES[regime] if regime < len(REGIME_NAMES) else str(regime)
+            out["by_regime"][name] = {
+                "windows": st.windows,
+                "ill_posed": st.ill_posed,
+                "median_abc": st.median,
+                "iqr_abc": st.iqr,
+                "mean_abc": st.mean,
+                "median_r": st.specific_median,
+            }
+    if not well:
+        return out
+    f = well[-1]
+    entry: dict[str, Any] = {"stamp_ns": f.stamp_ns, "run_id": f.run_id, "window_length_s": f.window_length,
+                             "sample_count": f.sample_count, "gof": out["gof"], "gof_value_n": f.gof_value,
+                             "a_n": f.a, "b_n_per_m_s": f.b, "c_n_per_m2_s2": f.c, "r0": f.r0, "r1": f.r1, "r2": f.r2,
+                             "regime": REGIME_NAMES[f.regime] if f.regime < len(REGIME_NAMES) else f.regime,
+                             "speed_span_m_s": f.speed_span}  # fmt: skip
+    if train is not None:
+        for c in COEFFS:
+            ref = getattr(train.davis, c)
+            entry[f"{c}_vs_manufacturer"] = (getattr(f, c) - ref) / ref if ref else None
+    speeds = {}
+    for kmh in REFERENCE_SPEEDS_KMH:
+        v = kmh / 3.6
+        value = f.r0 + f.r1 * v + f.r2 * v * v
+        row: dict[str, Any] = {"value": value}
+        if train is not None:
+            ref = train.davis.r0 + train.davis.r1 * v + train.davis.r2 * v * v
+            row |= {"manufacturer": ref, "vs_manufacturer": (value - ref) / ref}
+        if truth is not None and all(c in truth for c in COEFFS):
+            true = truth["r0"] + truth["r1"] * v + truth["r2"] * v * v
+            row |= {"truth": true, "vs_truth": (value - true) / true}
+        speeds[f"{kmh:g}"] = row
+    entry["resistance_at_kmh"] = speeds
+    out["last_well_posed"] = entry
     return out
 
 
@@ -227,13 +299,8 @@ def summarize(
     else:
         summary["final"] = None
         summary["runs"] = []
-    if outputs.window_count:
-        window = dict(outputs.window or {})
-        if window and train is not None:
-            for c in COEFFS:
-                ref = getattr(train.davis, c)
-                window[f"{c}_vs_manufacturer"] = (window[c] - ref) / ref if ref else None
-        summary["window"] = {"messages": outputs.window_count, "last_well_posed": window or None}
+    if outputs.windows:
+        summary["window"] = window_summary(outputs.windows, train, truth)
     summary["regime_share"] = regime_shares(outputs.features)
     summary["dropped"] = dropped_counts(outputs)
     summary["dropped_total"] = sum(n for t in summary["dropped"].values() for r in t.values() for n in r.values())
@@ -321,16 +388,7 @@ def format_summary(summary: dict[str, Any]) -> str:
         if means:
             parts.append("brake rates " + "/".join(f"{m:.2f}" for m in means) + " m/s^2")
         lines.append("  " + ", ".join(parts))
-    window = summary.get("window")
-    if window:
-        w = window.get("last_well_posed")
-        if w:
-            lines.append(
-                f"Sliding-window calibration ({window['messages']} windows): last well-posed {w['window_length']:g} s "
-                f"window r0 {w['r0']:.4e}, r1 {w['r1']:.4e}, r2 {w['r2']:.4e}"
-            )
-        else:
-            lines.append(f"Sliding-window calibration: {window['messages']} windows, none well posed")
+    lines += _format_window(summary.get("window"))
     dropped = summary.get("dropped", {})
     total = summary.get("dropped_total", 0)
     detail = "; ".join(
@@ -358,9 +416,43 @@ def format_summary(summary: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
+def _format_window(window: dict[str, Any] | None) -> list[str]:
+    if not window:
+        return []
+    head = (
+        f"Sliding-window calibration with traction power ({window['gof']}, {window['window_length_s']:g} s windows): "
+        f"{window['well_posed']} of {window['messages']} windows well posed"
+    )
+    w = window.get("last_well_posed")
+    if not w:
+        return [head + " (none: nothing published; the speed does not resolve the resistance, docs/window.md)"]
+    lines = [head + f"; the last ({w['regime']}, {w['sample_count']} steps, {window['gof']} {w['gof_value_n']:.3g} N):"]
+    lines.append(
+        f"    A {w['a_n']:.4g} N, B {w['b_n_per_m_s']:.4g} N/(m/s), C {w['c_n_per_m2_s2']:.4g} N/(m/s)^2 = "
+        f"r0 {w['r0']:.4e}, r1 {w['r1']:.4e}, r2 {w['r2']:.4e}"
+    )
+    parts = []
+    for kmh, row in w.get("resistance_at_kmh", {}).items():
+        text = f"{kmh} km/h {row['value']:.4f} N/kg"
+        if "vs_truth" in row:
+            text += f" ({_pct(row['vs_truth'])} vs truth)"
+        elif "vs_manufacturer" in row:
+            text += f" ({_pct(row['vs_manufacturer'])} vs manuf.)"
+        parts.append(text)
+    if parts:
+        lines.append("    r(v): " + ", ".join(parts))
+    regimes = window.get("by_regime", {})
+    if regimes:
+        lines.append(
+            "    per regime (well/ill posed): "
+            + ", ".join(f"{name} {st['windows']}/{st['ill_posed']}" for name, st in regimes.items())
+        )
+    return lines
+
+
 def _pct(x: float | None) -> str:
     return "" if x is None else f"{100 * x:+.1f} %"
 
 
 __all__ = ["Outputs", "dropped_counts", "filter_health", "format_summary", "read_outputs", "regime_shares",
-           "run_features", "summarize", "write_summary"]  # fmt: skip
+           "run_features", "summarize", "window_fit_from_msg", "window_summary", "write_summary"]  # fmt: skip

@@ -16,6 +16,7 @@ DATA_TOPICS = {
     "/train_calib/resistance": "estimates",
     "/train_calib/regime": "regimes",
     "/train_calib/features": "features",
+    "/train_calib/window_resistance": "windows",
 }
 
 

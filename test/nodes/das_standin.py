@@ -14,13 +14,14 @@ import rclpy
 from rclpy.context import Context
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
-from train_calib_msgs.msg import DrivingFeatures, DrivingRegime, ResistanceEstimate, TrackMeasurement
+from train_calib_msgs.msg import DrivingFeatures, DrivingRegime, ResistanceEstimate, TrackMeasurement, WindowResistance
 
 TOPICS = {
     "/train_calib/measurement": (TrackMeasurement, lambda m: [m.s, m.v, m.run_id]),
     "/train_calib/resistance": (ResistanceEstimate, lambda m: [m.r0, m.r1, m.r2, float(m.covariance[12])]),
     "/train_calib/regime": (DrivingRegime, lambda m: [m.regime, m.effort]),
     "/train_calib/features": (DrivingFeatures, lambda m: [m.run_complete, list(m.regime_time_share)]),
+    "/train_calib/window_resistance": (WindowResistance, lambda m: [m.ill_posed, m.r0, m.r1, m.r2]),
 }
 
 

@@ -1,4 +1,5 @@
-"""config/train_calib.yaml equals the core ParamSet defaults; the launch file describes the graph."""
+"""config/train_calib.yaml equals the core ParamSet defaults, config/ukf_converging.yaml the converging preset; the
+launch file describes the graph."""
 
 from __future__ import annotations
 
@@ -39,6 +40,22 @@ def test_params_file_is_the_generated_text_with_the_documentation():
     assert "init_std_r0: 1.0e-06" in text  # YAML 1.1 reads 1e-06 as a string
 
 
+def test_converging_params_file_is_the_core_preset():
+    from train_calib.commands.replay import preset_params_yaml
+    from train_calib.nodes.config import ukf_preset_yaml
+
+    path = REPO / "config" / "ukf_converging.yaml"
+    text = path.read_text()
+    assert text == ukf_preset_yaml("converging"), "regenerate: python -m train_calib.nodes.config --preset converging"
+    values = yaml.safe_load(text)["ukf_node"]["ros__parameters"]
+    preset = {k: list(v) if isinstance(v, tuple) else v for k, v in UKFConfig.converging().as_dict().items()}
+    assert values == preset and set(yaml.safe_load(text)) == {"ukf_node"}
+    assert UKFConfig.from_mapping(values, source=str(path)) == UKFConfig.converging()
+    assert "# Why: the defaults (config/train_calib.yaml) are Table 1" in text
+    assert "    alpha: 0.5\n" in text and "(Table 1 / default: 0.001)" in text  # what differs from Table 1 says so
+    assert yaml.safe_load(preset_params_yaml("converging")) == yaml.safe_load(text)  # --ukf-preset converging
+
+
 def test_parameter_names_are_unique_within_each_node():
     for node in NODE_PARAMS:
         names = [spec.name for _, spec in node_specs(node)]
@@ -67,11 +84,26 @@ def test_launch_file_imports_and_describes_the_graph():
         assert overrides["use_sim_time"] is True
     assert nodes[0]["parameters"][1] == {"use_sim_time": True, "track_file": "tunnel_line_37km", "train_file": "virm4"}
     assert [n["name"] for n in launch.describe(window=True)][-1] == "window_calib_node"
-    assert set(launch.ARGUMENTS) == {"params_file", "track", "train", "use_sim_time", "window", "namespace"}
+    assert set(launch.ARGUMENTS) == {
+        "params_file", "track", "train", "use_sim_time", "window", "traction_power", "ukf_preset", "namespace"
+    }  # fmt: skip
+    # window: auto (the launch default) follows traction_power; true/false force it
+    defaults = {name: default for name, (default, _) in launch.ARGUMENTS.items()}
+    assert [n["name"] for n in launch.describe(**defaults)] == list(GRAPH_NODES)
+    powered = launch.describe(**(defaults | {"traction_power": "true"}))
+    assert [n["name"] for n in powered][-1] == "window_calib_node"
+    assert powered[-1]["parameters"][1] == {"use_sim_time": False}
+    assert len(launch.describe(**(defaults | {"traction_power": "true", "window": "false"}))) == len(GRAPH_NODES)
+    # ukf_preset: converging adds config/ukf_converging.yaml to ukf_node after the params file
+    ukf = next(n for n in launch.describe(ukf_preset="converging") if n["name"] == "ukf_node")
+    assert ukf["parameters"][:2] == [str(CONFIG), str(REPO / "config" / "ukf_converging.yaml")]
+    for bad in ({"window": "maybe"}, {"ukf_preset": "fast"}, {"use_sim_time": "ja"}):
+        with pytest.raises(ValueError, match=f"launch argument {next(iter(bad))}: "):
+            launch.describe(**bad)
 
 
 def test_launch_description_builds_with_launch_installed():
     pytest.importorskip("launch_ros")  # first: the repository's launch/ folder shadows a missing `launch`
     pytest.importorskip("launch")
     description = _launch_module().generate_launch_description()
-    assert len(description.entities) == 7
+    assert len(description.entities) == len(_launch_module().ARGUMENTS) + 1

@@ -3,6 +3,7 @@
 In one process (EventsExecutor and SingleThreadedExecutor), with one process per node, at rate 0 and at
 a high finite rate; a separate DAS process receives every message; output.mcap reads the same with
 rosbags and mcap; /diagnostics carry the drops by reason, the rates and the filter health in sim time.
+The synthetic bag has traction power, so window_calib_node runs too (/train_calib/window_resistance is compared).
 """
 
 from __future__ import annotations
@@ -61,7 +62,10 @@ def test_one_process_replay_equals_the_offline_pipeline_message_for_message(bag,
     for m in bagio.iter_bag(bag):
         counts[m.topic] += 1
     assert result.sent == counts  # every input message was published once
+    assert result.nodes[-1] == "window_calib_node"  # the bag has /train/traction_power
     assert compare(outputs, reference) == []
+    runs = len({m.run_id for m in reference.measurements})
+    assert len(reference.windows) == sum(m.power_valid for m in reference.measurements) - runs  # the first: no step
     n = len(reference.measurements)
     assert n > 300 and len(reference.features) > 10
     assert len({m.run_id for m in reference.measurements}) == 2
@@ -156,7 +160,7 @@ def test_diagnostics_report_drops_by_reason_rates_and_filter_health_in_sim_time(
     for array in diag:
         for status in array.status:
             last[status.name] = (array.header, status)
-    assert set(last) == {"gnss_speed_node", "ukf_node", "regime_node", "feature_node"}
+    assert set(last) == {"gnss_speed_node", "ukf_node", "regime_node", "feature_node", "window_calib_node"}
     _, gnss = last["gnss_speed_node"]
     values = {kv.key: kv.value for kv in gnss.values}
     drops = {k: int(v) for k, v in values.items() if " dropped " in k}
@@ -176,6 +180,14 @@ def test_diagnostics_report_drops_by_reason_rates_and_filter_health_in_sim_time(
     ukf_values = {kv.key: kv.value for kv in ukf.values}
     assert ukf_values["filter health"] in ("ok", "repaired", "degraded", "reset")
     assert int(ukf_values["filter updates"]) == len(reference.estimates)
+    _, window = last["window_calib_node"]
+    window_values = {kv.key: kv.value for kv in window.values}
+    well = sum(not f.ill_posed for f in reference.windows)
+    assert int(window_values["windows well posed"]) == well
+    assert int(window_values["windows ill posed"]) == len(reference.windows) - well
+    assert int(window_values["/train_calib/window_resistance published"]) == len(reference.windows)
+    _, regime = last["regime_node"]
+    assert {kv.key: kv.value for kv in regime.values}["method"] == "hmm"
     # use_sim_time: diagnostics are stamped with the bag's clock, not the wall clock
     first = reference.measurements[0].stamp_ns
     stamps = [bagio.stamp_ns(a.header) for a in diag]
@@ -204,6 +216,9 @@ def test_a_separate_das_process_receives_every_message(bag, reference, tmp_path)
     assert [r[1:4] for r in received["/train_calib/resistance"]] == [[e.r0, e.r1, e.r2] for e in reference.estimates]
     assert [r[1] for r in received["/train_calib/regime"]] == [r.regime for r in reference.regimes]
     assert [r[1] for r in received["/train_calib/features"]] == [f.run_complete for f in reference.features]
+    assert [r[:2] for r in received["/train_calib/window_resistance"]] == [
+        [f.stamp_ns, f.ill_posed] for f in reference.windows
+    ]
 
 
 def test_params_file_reaches_the_nodes_and_carry_over_keeps_the_resistance_at_a_new_run(bag, tmp_path):

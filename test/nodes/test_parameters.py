@@ -125,6 +125,12 @@ def test_a_bad_value_at_run_time_is_refused_with_the_reason_and_a_good_one_is_ap
             [Parameter("start_station", value="Beta"), Parameter("max_cross_track", value=12.0)]
         )
         assert ok.successful and gnss.ingest.config.max_cross_track == 12.0 and gnss.ingest._start_s == 2900.0
+        for _ in range(3):  # the HMM's belief after a few samples ...
+            regime.classifier.classify(0.3, 0.5, 10.0)
+        assert regime.classifier.probabilities is not None
+        (ok,) = regime.set_parameters([Parameter("switch_probability", value=0.05)])
+        assert ok.successful and regime.classifier.probabilities is None  # ... restarts with a parameter change
+        assert ("classifier restarts (parameter changes)", 1) in regime.diagnostic_values()
         (ok,) = regime.set_parameters([Parameter("method", value="rule")])  # the paper's stateless rule
         assert ok.successful and regime.classifier.config.method == "rule"
         assert regime.classifier.classify(0.3, 0.5, 10.0) == 1  # traction

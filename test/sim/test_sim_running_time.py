@@ -141,6 +141,8 @@ def test_random_parameters_in_a_calibration_box_never_break_the_model():
     rng = np.random.default_rng(0)
     trk = track("dense_corridor_14km")
     base = RunningTimeParams.from_train(train("virm6"))
+    grid = np.linspace(250.0, 14550.0, 2001)
+    limits = {L: np.array([trk.limit_over_train(float(x), L) for x in grid]) for L in (108.0, 162.0, 270.0, 282.0)}
     ok = 0
     for _ in range(150):
         p = base.replace(
@@ -160,4 +162,20 @@ def test_random_parameters_in_a_calibration_box_never_break_the_model():
             continue
         ok += 1
         assert np.all(np.diff(prof.s) > 0) and np.all(np.diff(prof.t) > 0) and prof.v[-1] == 0.0
+        # never above theta x the limit over the train: neither when b_stop < b_limit (the stop's braking
+        # curve meets a lower limit's) nor when the ceiling is reached in a step that ends on a rise
+        assert np.all(prof.speed_at(grid) <= p.theta_cruise * limits[p.length_m] + 1e-6)
     assert ok > 100
+
+
+def test_braking_curves_that_meet_are_followed_to_the_lower_target():
+    """b_stop < b_limit: the stop's braking curve meets the last lower limit's; the train must take the
+    steeper one there (it used to keep braking at b_stop and pass the 40 km/h limit at 77 km/h)."""
+    trk, trn = track("intercity_32km"), train("virm6")
+    p = RunningTimeParams.from_train(trn, theta_cruise=0.786, b_limit=0.708, b_stop=0.379, c2=2.77, c0=0.404)
+    s0, s1 = trk.stations[0].s_m, trk.stations[-1].s_m
+    prof = running_time_profile(trk, p, s0, s1)
+    s = np.linspace(s1 - 1500.0, s1, 1501)
+    ceiling = np.array([p.theta_cruise * trk.limit_over_train(float(x), trn.length_m) for x in s])
+    assert np.all(prof.speed_at(s) <= ceiling + 1e-6)
+    assert prof.run_time == pytest.approx(reference_run_time(trk, p, s0, s1, ds=1.0), abs=0.1)

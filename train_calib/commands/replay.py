@@ -55,10 +55,16 @@ def add_common_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--ukf-preset",
         choices=("paper", "converging"),
-        help="ukf_node parameters of a preset (docs/estimator.md): paper (Table 1, the defaults) or converging; "
-        "--params-file values still override",
+        help="ukf_node parameters of a preset (docs/estimator.md): paper (Table 1, the defaults) or converging "
+        "(config/ukf_converging.yaml); --params-file values still override",
     )
-    parser.add_argument("--window", action="store_true", help="also run window_calib_node (needs traction power)")
+    parser.add_argument(
+        "--window",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help="run window_calib_node, the sliding-window calibration with traction power (default: when the bag has "
+        "/train/traction_power; --no-window: never)",
+    )
     parser.add_argument(
         "--executor",
         choices=("events", "single"),
@@ -101,13 +107,11 @@ def load_truth(bag: Path) -> dict[str, Any] | None:
 def execute(args: argparse.Namespace, out: Path, track: str, train: str) -> dict[str, Any]:
     """Replay, then summary.json and report.png; returns the summary."""
     from .. import paths
-    from ..nodes.config import GRAPH_NODES
     from ..replay import ReplayOptions, replay
     from ..report import write_report
     from ..summary import read_outputs, summarize, write_summary
     from ..train import load_train
 
-    nodes = GRAPH_NODES + (("window_calib_node",) if args.window else ())
     log = (lambda text: None) if args.quiet else (lambda text: print(text, file=sys.stderr, flush=True))
     truth = load_truth(args.bag)
     with tempfile.TemporaryDirectory(prefix="train_calib_preset_") as tmp:
@@ -126,7 +130,7 @@ def execute(args: argparse.Namespace, out: Path, track: str, train: str) -> dict
                 rate=args.rate,
                 processes=args.processes,
                 params_files=params_files,
-                nodes=nodes,
+                window=args.window,
                 executor=args.executor,
                 wait_for_subscribers=args.wait_for_subscribers,
                 overwrite=args.overwrite,
@@ -148,6 +152,7 @@ def execute(args: argparse.Namespace, out: Path, track: str, train: str) -> dict
             "executor": result.executor,
             "rate": args.rate,
             "ukf_preset": args.ukf_preset or "parameters",
+            "nodes": list(result.nodes),
             "wall_time_s": round(result.wall_s, 3),
             "bag_duration_s": round(result.bag_duration_s, 3),
             "interrupted": result.interrupted,
@@ -173,13 +178,10 @@ def execute(args: argparse.Namespace, out: Path, track: str, train: str) -> dict
 
 
 def preset_params_yaml(name: str) -> str:
-    """A params file with every ukf_node parameter of a UKFConfig preset."""
-    import yaml
+    """A params file with every UKFConfig parameter of ukf_node in a preset (config/ukf_<name>.yaml's values)."""
+    from ..nodes.config import ukf_preset_yaml
 
-    from ..estimation import UKFConfig
-
-    values = {k: list(v) if isinstance(v, tuple) else v for k, v in UKFConfig.preset(name).as_dict().items()}
-    return yaml.safe_dump({"ukf_node": {"ros__parameters": values}}, sort_keys=False)
+    return ukf_preset_yaml(name)
 
 
 EXIT_OK = 0

@@ -46,7 +46,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--power-period", type=float, help="power period, s (default --period)")
     parser.add_argument("--gnss-noise", type=float, default=4.0, help="GNSS noise per axis, m (default 4)")
     parser.add_argument("--gnss-dropout", type=float, default=0.0, help="probability of a missing fix (default 0)")
-    parser.add_argument("--speed-noise", type=float, default=0.5, help="speed noise before 1 km/h rounding, km/h")
+    parser.add_argument(
+        "--speed-noise", type=float, default=0.5, help="speed noise (std) before rounding to --speed-quantum, km/h"
+    )
+    parser.add_argument(
+        "--speed-quantum",
+        type=float,
+        default=1.0,
+        help="speed resolution, km/h: the measured speed is rounded to it (default 1, the paper's; e.g. 0.01 for "
+        "wheel-tachometer odometry; 0 = no rounding)",
+    )
     parser.add_argument(
         "--resistance-spread",
         type=float,
@@ -129,6 +138,11 @@ def run(args: argparse.Namespace) -> int:
             _check(0.01 <= value <= 600.0, option, f"must be within [0.01, 600] s, found {value:g}")
     _check(args.gnss_noise >= 0.0, "--gnss-noise", f"must be at least 0 m, found {args.gnss_noise:g}")
     _check(args.speed_noise >= 0.0, "--speed-noise", f"must be at least 0 km/h, found {args.speed_noise:g}")
+    _check(
+        0.0 <= args.speed_quantum <= 10.0,
+        "--speed-quantum",
+        f"must be within [0, 10] km/h, found {args.speed_quantum:g}",
+    )
     _check(0.0 <= args.gnss_dropout <= 1.0, "--gnss-dropout", f"must be within [0, 1], found {args.gnss_dropout:g}")
     _check(
         0.0 <= args.resistance_spread <= 0.9,
@@ -158,6 +172,7 @@ def run(args: argparse.Namespace) -> int:
         gnss_noise_m=args.gnss_noise,
         gnss_dropout=args.gnss_dropout,
         speed_noise_kmh=args.speed_noise,
+        speed_quantum_kmh=args.speed_quantum,
     )
     prefix = args.name or f"{track.name}_{_label(period)}"
     out = Path(args.out)
@@ -238,6 +253,8 @@ def _command_line(args: argparse.Namespace, index: int) -> str:
         parts += ["--gnss-dropout", f"{args.gnss_dropout:g}"]
     if args.speed_noise != 0.5:
         parts += ["--speed-noise", f"{args.speed_noise:g}"]
+    if args.speed_quantum != 1.0:
+        parts += ["--speed-quantum", f"{args.speed_quantum:g}"]
     if args.resistance_spread != 0.2:
         parts += ["--resistance-spread", f"{args.resistance_spread:g}"]
     if args.style != "mixed":

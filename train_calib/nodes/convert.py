@@ -97,7 +97,12 @@ def estimate_to_msg(e: EstimateSample, frame_id: str = "") -> ResistanceEstimate
 
 @dataclass
 class RegimeInput:
-    """What regime_node and feature_node need of an estimate (duck-types EstimateSample for FeatureAccumulator)."""
+    """What regime_node and feature_node need of an estimate (duck-types EstimateSample for FeatureAccumulator
+    and :func:`train_calib.pipeline.classify_estimate`).
+
+    ``effort_known``, ``resistance`` and ``track_force`` come from a ResistanceEstimate (regime_node); a
+    DrivingRegime (feature_node) does not carry them and leaves them None.
+    """
 
     stamp_ns: int
     run_id: int
@@ -105,11 +110,14 @@ class RegimeInput:
     v: float  # m/s
     effort: float  # N/kg
     acceleration: float  # m/s^2
+    effort_known: bool | None = None  # effort taken as known (coasting u = 0, or measured traction power)
+    resistance: float | None = None  # r(v) at the filtered speed, N/kg
+    track_force: float | None = None  # g(s), N/kg
 
 
 def regime_input_from_msg(msg: Any) -> RegimeInput:
-    """From a ResistanceEstimate or a DrivingRegime (rclpy or rosbags)."""
-    return RegimeInput(
+    """From a ResistanceEstimate (with effort_known, resistance, track_force) or a DrivingRegime (rclpy or rosbags)."""
+    sample = RegimeInput(
         stamp_to_ns(msg.header.stamp),
         int(msg.run_id),
         float(msg.s),
@@ -117,6 +125,11 @@ def regime_input_from_msg(msg: Any) -> RegimeInput:
         float(msg.effort),
         float(msg.acceleration),
     )
+    if hasattr(msg, "resistance"):  # a ResistanceEstimate
+        sample.effort_known = bool(msg.effort_known)
+        sample.resistance = float(msg.resistance)
+        sample.track_force = float(msg.track_force)
+    return sample
 
 
 # -- DrivingRegime ----------------------------------------------------------------------------------

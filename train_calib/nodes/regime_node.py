@@ -1,8 +1,14 @@
 """regime_node: /train_calib/resistance -> /train_calib/regime (DrivingRegime), one per estimate.
 
-The rule (Cunillera et al. 2022, Section 3.2) is the core's :class:`~train_calib.estimation.RegimeClassifier`
-on the estimate's effort, acceleration and filtered speed (standing is UNKNOWN). Threshold changes take
-effect at once (the rule has no state).
+The core's :class:`~train_calib.estimation.RegimeClassifier` (Cunillera et al. 2022, Section 3.2; docs/estimator.md,
+"Regimes") on each estimate's effort, acceleration and filtered speed, with its ``effort_known`` and the force the
+effort works against, ``resistance + track_force`` (:func:`train_calib.pipeline.classify_estimate`, the offline
+pipeline's call too). Standing (slower than ``standstill_speed``) is UNKNOWN.
+
+``method: hmm`` (the default) is causal and stateful: the forward filter of a hidden Markov model carries its
+belief over the regimes from sample to sample (restarted by a standstill). ``method: rule`` is the paper's
+stateless per-sample rule. A parameter change at run time takes effect at once by building a new classifier:
+with ``hmm`` this restarts the belief (the next sample is classified as the first of a departure).
 """
 
 from __future__ import annotations
@@ -14,6 +20,7 @@ from train_calib_msgs.msg import DrivingRegime, ResistanceEstimate
 
 from ..estimation import REGIME_NAMES, RegimeClassifier, RegimeConfig
 from ..params import ParamSet
+from ..pipeline import classify_estimate
 from .common import TrainCalibNode, run_node
 from .config import REGIME_TOPIC, RESISTANCE_TOPIC
 from .convert import regime_input_from_msg, regime_to_msg
@@ -26,21 +33,26 @@ class RegimeNode(TrainCalibNode):
         super().__init__(**kwargs)
         self.classifier = RegimeClassifier(self.config(RegimeConfig))
         self._counts: Counter[int] = Counter()
+        self._restarts = 0
         self.output(DrivingRegime, REGIME_TOPIC)
         self.chain_input(ResistanceEstimate, RESISTANCE_TOPIC, self._on_estimate)
 
     def _on_estimate(self, msg: ResistanceEstimate) -> None:
         sample = regime_input_from_msg(msg)
-        regime = self.classifier.classify(sample.effort, sample.acceleration, sample.v)
+        regime = classify_estimate(self.classifier, sample)
         self._counts[regime] += 1
         self.publish(REGIME_TOPIC, regime_to_msg(sample, regime, msg.header.frame_id))
 
     def on_parameters_changed(self, changed: set[type[ParamSet]]) -> None:
-        if RegimeConfig in changed:
+        if RegimeConfig in changed:  # a new classifier: the HMM's belief restarts
             self.classifier = RegimeClassifier(self.config(RegimeConfig))
+            self._restarts += 1
 
     def diagnostic_values(self) -> list[tuple[str, Any]]:
-        return [(f"samples {name}", self._counts[i]) for i, name in enumerate(REGIME_NAMES)]
+        out: list[tuple[str, Any]] = [("method", self.classifier.config.method)]
+        out += [(f"samples {name}", self._counts[i]) for i, name in enumerate(REGIME_NAMES)]
+        out.append(("classifier restarts (parameter changes)", self._restarts))
+        return out
 
 
 def main(args: list[str] | None = None) -> int:

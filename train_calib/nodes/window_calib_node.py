@@ -62,8 +62,10 @@ class WindowCalibNode(TrainCalibNode):
             self.destroy_node()
             raise
         self._held: deque[tuple[Measurement, str]] = deque()  # (measurement, frame_id) awaiting the regime
-        self._regimes: dict[int, int] = {}  # stamp_ns -> regime, for held and not yet seen measurements
-        self._newest_regime_ns = -1
+        # (run_id, stamp_ns) -> regime, for held and not yet seen measurements; keyed and ordered by run first, as
+        # a new run may restart the clock (a stamp of run k + 1 can be older than one of run k)
+        self._regimes: dict[tuple[int, int], int] = {}
+        self._newest_regime: tuple[int, int] = (-1, -1)
         self._measurements = 0
         self._with_power = 0
         self._regime_from_power = 0
@@ -87,9 +89,9 @@ class WindowCalibNode(TrainCalibNode):
         self._release()
 
     def _on_regime(self, msg: DrivingRegime) -> None:
-        stamp = stamp_to_ns(msg.header.stamp)
-        self._regimes[stamp] = int(msg.regime)
-        self._newest_regime_ns = max(self._newest_regime_ns, stamp)
+        key = (int(msg.run_id), stamp_to_ns(msg.header.stamp))
+        self._regimes[key] = int(msg.regime)
+        self._newest_regime = max(self._newest_regime, key)
         self._release()
 
     def _release(self, everything: bool = False) -> None:
@@ -97,12 +99,13 @@ class WindowCalibNode(TrainCalibNode):
         cfg = self.config(WindowConfig)
         while self._held:
             m, frame_id = self._held[0]
-            regime = self._regimes.pop(m.stamp_ns, None)
+            key = (m.run_id, m.stamp_ns)
+            regime = self._regimes.pop(key, None)
             if regime is None and cfg.regime_source == "regime_topic":
                 # regimes come in stamp order: one of a later stamp means this one will not come; with no
                 # regime at all after max_regime_wait measurements, regime_node is not running
-                expected = self._newest_regime_ns >= 0 or self._measurements <= cfg.max_regime_wait
-                waiting = expected and m.stamp_ns > self._newest_regime_ns and len(self._held) <= cfg.max_regime_wait
+                expected = self._newest_regime[0] >= 0 or self._measurements <= cfg.max_regime_wait
+                waiting = expected and key > self._newest_regime and len(self._held) <= cfg.max_regime_wait
                 if waiting and not everything:
                     return
                 self._regime_from_power += 1
@@ -113,8 +116,9 @@ class WindowCalibNode(TrainCalibNode):
                 self.publish(WINDOW_TOPIC, window_to_msg(fit, frame_id))
         # regimes of measurements never seen (dropped upstream) must not accumulate
         if len(self._regimes) > 4 * max(cfg.max_regime_wait, 1) + 100:
-            oldest_held = self._held[0][0].stamp_ns if self._held else self._newest_regime_ns
-            self._regimes = {s: r for s, r in self._regimes.items() if s >= oldest_held}
+            oldest = self._held[0][0] if self._held else None
+            oldest_held = (oldest.run_id, oldest.stamp_ns) if oldest is not None else self._newest_regime
+            self._regimes = {k: r for k, r in self._regimes.items() if k >= oldest_held}
 
     # -- node conventions -------------------------------------------------------------------------
     @property

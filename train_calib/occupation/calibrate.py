@@ -1,11 +1,17 @@
 """Calibration of one run: differential evolution over beta = (c0, c2, r0, r2, b_limit, theta_cruise).
 
 Besinovic et al. use a hand-tuned genetic algorithm in MATLAB; we use scipy's differential evolution
-(a well-kept evolutionary optimiser: seeded, bounded, parallel with ``workers`` and
-``updating='deferred'``). The objective (eq. 8, :mod:`.objective`) is a sum of absolute values of
-piecewise-smooth passage times, so gradient polishing (L-BFGS-B) gains nothing and is off.
-c1 and r1 are fixed (c1 = 0, r1 = the composition default), as the paper's sensitivity analysis
-justifies (reproduced by :mod:`.sensitivity`).
+(a well-kept evolutionary optimiser: seeded, bounded). The objective (eq. 8, :mod:`.objective`) is a
+sum of absolute values of piecewise-smooth passage times, so gradient polishing (L-BFGS-B) gains
+nothing and is off. c1 and r1 are fixed (c1 = 0, r1 = the composition default), as the paper's
+sensitivity analysis justifies (reproduced by :mod:`.sensitivity`).
+
+Speed: with a model that has ``batch`` (:class:`.model.SimulatorModel`) and ``workers=1`` the
+whole population of a generation is simulated in one call (``vectorized=True``,
+``updating='deferred'``: each generation's trials are built from the previous generation); this is
+what makes a calibration take well under a second. ``workers`` > 1 instead evaluates the members
+one by one in parallel processes (also deferred). Runs of a fleet are calibrated in parallel
+processes, each vectorised (:mod:`.pipeline`).
 """
 
 from __future__ import annotations
@@ -19,7 +25,7 @@ from scipy.optimize import differential_evolution
 
 from ..params import ParamSet, param
 from .compositions import DECISION_NAMES, Composition
-from .objective import Evaluation, Observations, ProfileModel, evaluate, objective
+from .objective import Evaluation, Observations, ProfileModel, evaluate, objective, objective_batch
 
 
 @dataclass(frozen=True)
@@ -66,7 +72,7 @@ class CalibrationResult:
     default_objective_s: float  # eq. 8 with the composition defaults, s
     n_observations: int
     n_legs: int
-    nfev: int
+    nfev: int  # parameter vectors the optimiser evaluated (model runs per leg)
     nit: int
     elapsed_s: float
     success: bool
@@ -99,6 +105,7 @@ class _Objective:
         self.obs = obs
         self.model = model
         self.fixed = dict(fixed)
+        self.runs = 0  # parameter vectors evaluated (in this process)
 
     def params(self, x: np.ndarray) -> dict[str, float]:
         p = dict(self.fixed)
@@ -106,8 +113,35 @@ class _Objective:
         return p
 
     def __call__(self, x: np.ndarray) -> float:
+        self.runs += 1
         value = objective(self.obs, self.model, self.params(x))
         return value if np.isfinite(value) else PENALTY_S
+
+
+class _BatchObjective(_Objective):
+    """The objective of a whole population: x of shape (6, S) -> (S,) (differential_evolution(vectorized=True))."""
+
+    def params(self, x: np.ndarray) -> dict:
+        p: dict = dict(self.fixed)
+        p.update(zip(DECISION_NAMES, np.asarray(x, dtype=float)))
+        return p
+
+    def __call__(self, x: np.ndarray):
+        x = np.asarray(x, dtype=float)
+        self.runs += x.size // len(DECISION_NAMES)
+        values = objective_batch(self.obs, self.model, self.params(x.reshape(len(DECISION_NAMES), -1)))
+        values = np.where(np.isfinite(values), values, PENALTY_S)
+        return values if x.ndim == 2 else float(values[0])
+
+
+class _Member:
+    """A batch-capable model seen as a scalar ProfileModel (one member): for the final evaluation."""
+
+    def __init__(self, model) -> None:
+        self.model = model
+
+    def __call__(self, params, start_m: float, stop_m: float):
+        return self.model.batch(params, start_m, stop_m).member(0)
 
 
 def calibrate_run(
@@ -123,14 +157,17 @@ def calibrate_run(
     """Minimise eq. 8 for one run within the composition's bounds.
 
     ``fixed_overrides``: values for the non-calibrated parameters (c1, r1, b_stop) other than the
-    composition defaults. ``workers`` > 1 evaluates each generation in parallel processes.
+    composition defaults. With ``workers`` = 1 and a model that has ``batch`` each generation is one
+    vectorised model call; ``workers`` > 1 evaluates the members in parallel processes instead.
     """
     cfg = config or CalibrationConfig()
     fixed = composition.model_params(**(fixed_overrides or {}))
-    fun = _Objective(obs, model, fixed)
+    vectorized = workers == 1 and callable(getattr(model, "batch", None))
+    fun = (_BatchObjective if vectorized else _Objective)(obs, model, fixed)
     bounds = [composition.bounds[name] for name in DECISION_NAMES]
     t0 = time.perf_counter()
     default_obj = fun(np.array([fixed[n] for n in DECISION_NAMES]))
+    runs0 = fun.runs
     history: list[float] = []
 
     def stalled(intermediate_result) -> bool:
@@ -153,12 +190,13 @@ def calibrate_run(
         polish=cfg.polish,
         init=cfg.init,
         workers=workers,
-        updating="deferred" if workers != 1 else "immediate",
+        updating="deferred" if workers != 1 or vectorized else "immediate",
+        vectorized=vectorized,
         callback=stalled,
     )
     elapsed = time.perf_counter() - t0
-    best = fun.params(res.x)
-    ev = evaluate(obs, model, best)
+    best = _Objective.params(fun, res.x)
+    ev = evaluate(obs, _Member(model) if vectorized else model, best)
     return CalibrationResult(
         run_id=obs.run_id,
         composition=composition.name,
@@ -167,7 +205,7 @@ def calibrate_run(
         default_objective_s=float(default_obj),
         n_observations=len(obs),
         n_legs=len(obs.legs),
-        nfev=int(res.nfev),
+        nfev=int(fun.runs - runs0) if vectorized else int(res.nfev),
         nit=int(res.nit),
         elapsed_s=elapsed,
         success=bool(res.success),

@@ -1,7 +1,9 @@
 """The running-time model the calibration calls: a thin wrapper of ``train_calib.sim``'s fast model.
 
 :func:`train_calib.sim.running_time.running_time_profile` is Besinovic's accelerate / cruise / brake
-model integrated over distance with RK45. :class:`SimulatorModel` binds it to a track and to the
+model integrated over distance with RK45; :func:`train_calib.sim.running_time_batch.running_time_batch`
+is the same model for a whole population of parameter vectors in one call (what differential
+evolution uses, one call per generation). :class:`SimulatorModel` binds them to a track and to the
 composition's fixed parameters and maps a parameter mapping (:data:`~.compositions.MODEL_NAMES`
 plus ``length_m``) onto :class:`~train_calib.sim.running_time.RunningTimeParams`. A parameter vector
 with which the train cannot start or stalls on a gradient gives a profile of NaN times, which the
@@ -18,6 +20,7 @@ import numpy as np
 from ..errors import TrainCalibError
 from ..sim.integrate import IntegrationError
 from ..sim.running_time import Profile, RunningTimeParams, running_time_profile
+from ..sim.running_time_batch import BATCH_FIELDS, ProfileBatch, running_time_batch
 from ..track import Track
 from ..train import load_train
 from .compositions import MODEL_NAMES, Composition
@@ -60,6 +63,26 @@ class SimulatorModel:
         """RunningTimeParams with ``values`` (model names and length_m) over the base."""
         changes = {k: float(values[k]) for k in (*MODEL_NAMES, "length_m") if k in values}
         return dataclasses.replace(self.base, **changes)
+
+    def batch(self, values: Mapping[str, float | np.ndarray], start_m: float, stop_m: float) -> ProfileBatch:
+        """Profiles of n parameter vectors at once: ``values`` maps names to arrays of length n or numbers.
+
+        The train length must be one number for the whole batch. Members the model cannot run (the
+        train cannot start or stalls) have ``ok`` False and NaN times; they are counted in ``failures``.
+        """
+        base = self.base
+        if "length_m" in values:
+            lengths = np.unique(np.asarray(values["length_m"], dtype=float))
+            if lengths.size != 1:
+                raise ValueError("a batch has one train length")
+            base = dataclasses.replace(base, length_m=float(lengths[0]))
+        per = {k: values[k] for k in BATCH_FIELDS if k in values}
+        out = running_time_batch(self.track, base, start_m, stop_m, rtol=self.rtol, **per)
+        bad = ~out.ok
+        if bad.any():
+            self.failures += int(np.count_nonzero(bad))
+            self.last_failure = out.error[int(np.argmax(bad))]
+        return out
 
     def __call__(self, values: Mapping[str, float], start_m: float, stop_m: float) -> Profile | FailedProfile:
         try:

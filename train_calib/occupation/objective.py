@@ -131,6 +131,24 @@ def evaluate(obs: Observations, model: ProfileModel, params: Mapping[str, float]
     return Evaluation(total, sim, obs.time_s - sim, departures, running)
 
 
+def objective_batch(obs: Observations, model, params: Mapping[str, object]) -> np.ndarray:
+    """J(beta) for n parameter vectors at once (``params`` values: arrays of length n or numbers), s.
+
+    ``model.batch(params, start_m, stop_m)`` gives the profiles (:meth:`.model.SimulatorModel.batch`);
+    inf where the model cannot run a leg.
+    """
+    total = None
+    for k, (start, stop) in enumerate(obs.legs):
+        mask = obs.leg == k
+        t_rel = model.batch(params, start, stop).time_at(obs.position_m[mask])  # (n, passages)
+        r = obs.time_s[mask][None, :] - t_rel
+        with np.errstate(invalid="ignore"):
+            part = np.sum(np.abs(r - np.median(r, axis=1, keepdims=True)), axis=1)
+        part[~np.all(np.isfinite(r), axis=1)] = np.inf
+        total = part if total is None else total + part
+    return total
+
+
 def objective(obs: Observations, model: ProfileModel, params: Mapping[str, float]) -> float:
     """J(beta): sum of absolute passage-time errors, s (inf if the model cannot run the leg)."""
     total = 0.0

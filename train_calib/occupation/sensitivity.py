@@ -75,8 +75,8 @@ def one_at_a_time(
     for name in names:
         value = float(params[name])
         step = rel_step * (params["c0"] ** 2 / params["c2"] if name == "c1" and value == 0.0 else abs(value))
-        # c1 = 0 is moved upwards only: with c1 < 0 the envelope min(c0 + c1 v, c2 / v) of the model
-        # falls back onto the (decreasing) line above the second crossing, which eq. 4 does not mean
+        # c1 = 0 is moved upwards only (+20 % effort at the transition speed), as in docs/occupation.md;
+        # c1 < 0 is valid too (the envelope switches to c2 / v at the transition speed, eq. 4)
         low = value if name == "c1" and value == 0.0 else value - step
         changes, worst = [], 0.0
         for v in (low, value + step):

@@ -2,7 +2,10 @@
 
     dv/dt = u - r(t, s, v) - g(s)
     r     = r0 + r1 v + (1 + f_tun * tunnel(s)) * r2 * (1 + w(t)) * v^2
-    u_max = min(c0 + c1 v, c2 / v, adhesion(v))            (traction envelope)
+    u_max = min(eq. 4 envelope, adhesion(v))                (traction envelope)
+
+Eq. 4 (Besinovic): c0 + c1 v up to the transition speed (first crossing), c2 / v above; for c1 >= 0
+that is min(c0 + c1 v, c2 / v), for c1 < 0 the switch is explicit (physics.tractive_envelope).
 
 g(s) and tunnel(s) are averaged over the train (head at s, tail at s - L). The mean of a
 piecewise-constant profile over a sliding window is piecewise linear, with knots at the profile's
@@ -20,7 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..physics import GRAVITY, adhesion_limit, transition_speed
+from ..physics import GRAVITY, adhesion_limit, tractive_envelope, transition_speed
 from ..track import Track
 
 
@@ -138,6 +141,25 @@ class MotionModel:
 
     def _make_envelope(self):
         c0, c1, c2, adh = self.c0, self.c1, self.c2, self._adh
+        if c1 < 0.0:
+            # Besinovic eq. 4 switches at the transition speed (the first crossing): with c1 < 0 the line
+            # falls below the hyperbola again above the second crossing, where min() would be wrong
+            v_t = self.transition_speed
+
+            def envelope_falling(v: float) -> float:
+                """Maximum tractive effort at speed v, N/kg (eq. 4 with c1 < 0, and adhesion); never negative."""
+                f = c0 + c1 * v if v <= v_t else c2 / v
+                if f < 0.0:
+                    f = 0.0
+                if adh > 0.0:
+                    cap = (0.161 + 7.5 / (3.6 * v + 44.0)) * adh
+                    if cap < f:
+                        f = cap
+                return f
+
+            return envelope_falling
+
+        # c1 >= 0: one crossing, min(c0 + c1 v, c2 / v) is eq. 4
 
         def envelope(v: float) -> float:
             """Maximum tractive effort at speed v, N/kg (effort/power limit and adhesion)."""
@@ -186,8 +208,11 @@ class MotionModel:
     # -- vectorised (truth, tests) ------------------------------------------------------------
     def envelope_vec(self, v) -> np.ndarray:
         v = np.asarray(v, dtype=float)
-        with np.errstate(divide="ignore"):
-            f = np.minimum(self.c0 + self.c1 * v, np.where(v > 0.0, self.c2 / np.maximum(v, 1e-300), np.inf))
+        if self.c1 < 0.0:  # eq. 4 switches at the transition speed (see _make_envelope)
+            f = tractive_envelope(v, self.c0, self.c2, self.c1)
+        else:
+            with np.errstate(divide="ignore"):
+                f = np.minimum(self.c0 + self.c1 * v, np.where(v > 0.0, self.c2 / np.maximum(v, 1e-300), np.inf))
         if self._adh > 0.0:
             f = np.minimum(f, adhesion_limit(v, self.adhesive_mass_fraction, self.rotating_mass_factor))
         return f

@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import math
 import weakref
-from bisect import bisect_right
+from bisect import bisect_left, bisect_right
 from dataclasses import dataclass
 
 import numpy as np
@@ -223,13 +223,18 @@ class _Run:
         return self.cv[max(bisect_right(self.cb, s) - 1, 0)]
 
     def brake2(self, s: float) -> tuple[float, int]:
-        """Lowest braking curve v^2 at s over the targets ahead, and its index (-1: none)."""
-        best, arg = math.inf, -1
+        """Lowest braking curve v^2 at s over the targets ahead, and its index (-1: none).
+
+        Where two curves meet (the end of a braking piece) the steeper one is the lower just ahead:
+        it is taken, or the train would follow the other past its target at too high a speed.
+        """
+        best, arg, best_b = math.inf, -1, 0.0
         for j, (p, vl2, b) in enumerate(self.targets):
             if p > s:
                 w = vl2 + 2.0 * b * (p - s)
-                if w < best:
-                    best, arg = w, j
+                tie = abs(w - best) <= 1e-9 * (1.0 + best)
+                if (w < best and not tie) or (tie and b > best_b):
+                    best, arg, best_b = min(w, best), j, b
         return best, arg
 
     def push(self, s: float, t: float, v: float, kind: int) -> None:
@@ -309,10 +314,12 @@ class _Run:
         cb, cv, targets = self.cb, self.cv, self.targets
 
         def cap(s: float, v: float) -> float:
-            c = cv[max(bisect_right(cb, s) - 1, 0)]
+            # the cap just before s: a step that ends exactly on a rise of the ceiling must still see
+            # the old ceiling there, or a crossing inside that step goes unnoticed
+            c = cv[max(bisect_left(cb, s) - 1, 0)]
             best = c * c
             for p, vl2, b in targets:
-                if p > s:
+                if p >= s:
                     w = vl2 + 2.0 * b * (p - s)
                     if w < best:
                         best = w
