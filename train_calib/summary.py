@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 
 from .bagio import iter_bag, stamp_ns
-from .estimation.regimes import REGIME_NAMES
+from .regime_codes import REGIME_NAMES, regime_name
 from .train import TrainSpec
 from .window import GOF_KINDS, WindowFit, summarize_by_regime
 
@@ -168,7 +168,7 @@ def window_summary(
     }
     if train is not None:
         for regime, st in summarize_by_regime(windows, train.effective_mass_kg).items():
-            name = REGIME_NAMES[regime] if regime < len(REGIME_NAMES) else str(regime)
+            name = regime_name(regime)
             out["by_regime"][name] = {
                 "windows": st.windows,
                 "ill_posed": st.ill_posed,
@@ -183,7 +183,7 @@ def window_summary(
     entry: dict[str, Any] = {"stamp_ns": f.stamp_ns, "run_id": f.run_id, "window_length_s": f.window_length,
                              "sample_count": f.sample_count, "gof": out["gof"], "gof_value_n": f.gof_value,
                              "a_n": f.a, "b_n_per_m_s": f.b, "c_n_per_m2_s2": f.c, "r0": f.r0, "r1": f.r1, "r2": f.r2,
-                             "regime": REGIME_NAMES[f.regime] if f.regime < len(REGIME_NAMES) else f.regime,
+                             "regime": regime_name(f.regime),
                              "speed_span_m_s": f.speed_span}  # fmt: skip
     if train is not None:
         for c in COEFFS:

@@ -47,14 +47,8 @@ import math
 
 import numpy as np
 
+from ..regime_codes import BRAKING, COASTING, CRUISING, REGIME_NAMES, TRACTION, UNKNOWN  # noqa: F401 (re-exported)
 from .config import RegimeConfig
-
-UNKNOWN = 0
-TRACTION = 1
-CRUISING = 2
-COASTING = 3
-BRAKING = 4
-REGIME_NAMES = ("unknown", "traction", "cruising", "coasting", "braking")
 
 _SQRT2 = math.sqrt(2.0)
 _LOG_SQRT_2PI = 0.5 * math.log(2.0 * math.pi)

@@ -22,8 +22,9 @@ from train_calib_msgs.msg import DrivingRegime, TrackMeasurement, WindowResistan
 from .. import paths
 from ..measurement import Measurement
 from ..params import ParamSet
+from ..regime_codes import regime_name
 from ..train import load_train
-from ..window import REGIME_NAMES, WindowCalibrator, WindowConfig, WindowFit
+from ..window import WindowCalibrator, WindowConfig, WindowFit
 from .common import WARN, TrainCalibNode, run_node
 from .config import MEASUREMENT_TOPIC, REGIME_TOPIC, WINDOW_TOPIC, TrainFile
 from .convert import measurement_from_msg, stamp_to_ns, time_msg
@@ -158,7 +159,7 @@ class WindowCalibNode(TrainCalibNode):
                 ("C (N/(m/s)^2)", _g(f.c)),
                 ("r0 r1 r2 (N/kg)", f"{_g(f.r0)} {_g(f.r1)} {_g(f.r2)}"),
                 ("last window steps", f.sample_count),
-                ("last window regime", REGIME_NAMES.get(f.regime, f.regime)),
+                ("last window regime", regime_name(f.regime)),
                 ("last window GoF (N)", _g(f.gof_value)),
                 ("last window ill posed", f.reason or "no"),
             ]

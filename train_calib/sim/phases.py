@@ -19,19 +19,9 @@ the first of those brakes. The feature extraction estimates the same quantities
 
 from __future__ import annotations
 
+from ..regime_codes import BRAKING, COASTING, CRUISING, REGIME_NAMES, TRACTION, UNKNOWN  # noqa: F401 (re-exported)
 from .driver import BrakeSteps
 from .model import MotionModel
-
-UNKNOWN, TRACTION, CRUISING, COASTING, BRAKING = 0, 1, 2, 3, 4
-"""The DrivingRegime constants of train_calib_msgs."""
-
-REGIME_NAMES = {
-    UNKNOWN: "unknown",
-    TRACTION: "traction",
-    CRUISING: "cruising",
-    COASTING: "coasting",
-    BRAKING: "braking",
-}
 
 
 class Phase:

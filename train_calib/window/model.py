@@ -19,19 +19,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from .. import physics
+from ..regime_codes import BRAKING, COASTING, CRUISING, REGIME_NAMES, TRACTION, UNKNOWN  # noqa: F401 (re-exported)
 from ..train import TrainSpec
 from .config import WindowConfig
-
-UNKNOWN, TRACTION, CRUISING, COASTING, BRAKING = 0, 1, 2, 3, 4
-"""DrivingRegime constants (train_calib_msgs/msg/DrivingRegime)."""
-
-REGIME_NAMES = {
-    UNKNOWN: "unknown",
-    TRACTION: "traction",
-    CRUISING: "cruising",
-    COASTING: "coasting",
-    BRAKING: "braking",
-}
 
 SAUTHOFF_TEXTBOOK_ABC = (2048.0, 98.4, 6.89)
 """De Martinis eq. 9, the Sauthoff coefficients of their train, read as A [N], B [N/(m/s)], C [N/(m/s)^2].

@@ -7,8 +7,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..regime_codes import regime_name
 from .fit import WindowFit
-from .model import REGIME_NAMES
 
 
 @dataclass(frozen=True)
@@ -49,7 +49,7 @@ def summarize_by_regime(fits: Iterable[WindowFit], effective_mass_kg: float) -> 
             q1 = med = q3 = mean = np.full(3, np.nan)
         out[regime] = RegimeStats(
             regime=regime,
-            name=REGIME_NAMES.get(regime, str(regime)),
+            name=regime_name(regime),
             windows=len(r),
             ill_posed=ill.get(regime, 0),
             median=tuple(float(x) for x in med),
