@@ -81,12 +81,14 @@ def regimes_of(est, cfg: RegimeConfig | None = None):
 
 @pytest.mark.parametrize(
     "period, power, bound, margin, hold_bound",
-    [(10.0, False, 0.87, 0.08, 0.90), (1.0, False, 0.86, 0.06, 0.92), (1.0, True, 0.93, 0.03, 0.96)],
+    [(10.0, False, 0.87, 0.08, 0.90), (1.0, False, 0.87, 0.04, 0.92), (1.0, True, 0.93, 0.03, 0.96)],
 )
 def test_regimes_against_the_drivers_labels(period, power, bound, margin, hold_bound):
     """The HMM filter against the simulator's driver-phase labels, four runs (two hold, two traction/coast cycles).
-    Measured: 10 s 88.4 % (hold runs 91.5, 93.8; cycles 85.5, 83.2), the paper's rule with hold detection 77.2 %;
-    1 Hz 87.8 % (rule 78.8 %); 1 Hz with traction power 94.6 % (rule 89.7 %). What limits it: docs/estimator.md."""
+    Measured: 10 s 88.6 % (hold runs 91.5, 93.8; cycles 85.5, 83.2), the paper's rule with hold detection 78.0 %;
+    1 Hz 89.0 % (rule 83.4 %); 1 Hz with traction power 94.8 % (rule 89.8 %). What limits it: docs/estimator.md.
+    The coasting look-ahead (coast_confirm_ahead) made r less wrong on the cycles runs, which helps the rule (it
+    reads the effort a + r + g) more than the HMM: at 1 Hz 79.1 -> 83.4 % and 88.0 -> 89.0 %."""
     right = rule_right = total = 0
     for k in range(4):
         run, ms, _truth, train = simulated_run(k, period, power)

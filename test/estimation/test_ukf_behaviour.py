@@ -160,7 +160,7 @@ def test_non_positive_definite_covariance_is_repaired_and_counted():
         est.update(series[i])
     bad = est.covariance
     bad[2, 4] = bad[4, 2] = 1.5 * math.sqrt(bad[2, 2] * bad[4, 4])  # correlation 1.5: not positive definite
-    est._P = pack(bad)
+    est._rf.P = pack(bad)  # the resistance filter's (it owns r; with look-ahead it runs one sample behind here)
     sample = est.update(series[30])
     assert sample.health == HEALTH_REPAIRED and est.counters["repairs"] == 1
     assert np.all(np.linalg.eigvalsh(sample.covariance) > 0.0)
@@ -172,7 +172,7 @@ def test_nan_covariance_resets_to_the_prior():
     est = ResistanceEstimator(train, UKFConfig.converging(), wrong_prior(train.davis, 0))
     for i in range(30):
         est.update(series[i])
-    est._P = tuple([math.nan] * 15)
+    est._rf.P = tuple([math.nan] * 15)
     sample = est.update(series[30])
     assert sample.health == HEALTH_RESET and est.counters["resets"] == 1
     assert sample.state[2:].tolist() == list(est.prior.as_tuple())

@@ -467,6 +467,7 @@ class FaultCase:
     max_recovery: int = 10  # samples after the fault until back within Tolerance() of the fault-free run
     max_s: float = 10.0  # m, largest |s - s_fault_free| over the run
     max_v: float = 0.5  # m/s, largest |v - v_fault_free| over the run
+    max_final: float = 0.01  # largest relative difference of the final r(v) at 80 and 120 km/h
 
     removed: int = 0  # speed messages the fault removed (a silent stream)
 
@@ -573,7 +574,12 @@ CASES: tuple[FaultCase, ...] = (
         lambda sc: swapped(swapped(list(sc.events), S0, S0 + 60, SPEED), S0, S0 + 60, GNSS),
         (S0, S0 + 60),
         {"speed": {"out_of_order": 30}, "gnss": {"out_of_order": 30}},
-        max_recovery=80,
+        # half the samples of the first coasting phase lost: r waits for the next one. Measured with the coasting
+        # look-ahead: recovery 231, final 1.11 %; before it 41 and 0.73 %, helped by 5 traction steps the
+        # reference took as coasting at 273-277 s. Over scenario seeds 1-8 (the same fault, other noise draws):
+        # recovery 16..406 and final 0.19..1.44 % before, 16..205 and 0.09..0.70 % with it
+        max_recovery=250,
+        max_final=0.015,
         max_v=1.5,
     ),
     FaultCase(

@@ -67,12 +67,18 @@ def _run(ms, cfg=None, safeguards=None, hook=None):
 
 
 def test_covariance_not_positive_definite_is_repaired_and_flagged(measurements):
+    """Broken in the resistance filter (it owns r and its covariance; with look-ahead it runs coast_confirm_ahead
+    behind the output filter and steps again within the next update): repaired there and flagged on that update,
+    which also outranks the DEGRADED flag the NIS window gives at that sample anyway."""
+
     def break_covariance(k, est):
         if k == 300:
             bad = est.covariance
             bad[2, 3] = bad[3, 2] = 2.0 * math.sqrt(bad[2, 2] * bad[3, 3])  # correlation 2
-            est._P = pack(bad)
+            est._rf.P = pack(bad)
 
+    _, clean = _run(measurements)
+    assert clean[300].health == HEALTH_DEGRADED  # what the flag would be without the fault
     est, out = _run(measurements, hook=break_covariance)
     assert out[300].health == HEALTH_REPAIRED and est.counters["repairs"] == 1
     for e in out:
@@ -81,22 +87,25 @@ def test_covariance_not_positive_definite_is_repaired_and_flagged(measurements):
 
 @pytest.mark.parametrize("where", ["state_v", "state_r", "covariance"])
 def test_nan_in_the_state_or_covariance_resets_keeping_a_valid_r(measurements, where):
+    """v is the output filter's (the published s, v); r and its covariance the resistance filter's (it steps again
+    within the next update: it runs coast_confirm_ahead behind)."""
+
     def poison(k, est):
         if k == 400:
             if where == "state_v":
-                est._x[1] = math.nan
+                est._h.x[1] = math.nan
             elif where == "state_r":
-                est._x[3] = math.inf
+                est._rf.x[3] = math.inf
             else:
-                est._P = tuple([math.nan] * 15)
+                est._rf.P = tuple([math.nan] * 15)
 
     _, clean = _run(measurements)
     est, out = _run(measurements, hook=poison)
     assert out[400].health == HEALTH_RESET and est.counters["resets"] == 1
     for e in out:
         check_physical(e)
-    if where == "state_v":  # r was valid: kept through the reset
-        assert (out[400].r0, out[400].r1, out[400].r2) == (clean[399].r0, clean[399].r1, clean[399].r2)
+    if where == "state_v":  # r was valid: kept through the reset, learnt on as in the fault-free run
+        assert (out[400].r0, out[400].r1, out[400].r2) == (clean[400].r0, clean[400].r1, clean[400].r2)
     else:  # r itself (or its covariance) was broken: back to the prior
         assert (out[400].r0, out[400].r1, out[400].r2) == TRAIN.davis.as_tuple()
     assert all(e.health in (HEALTH_OK, HEALTH_DEGRADED) for e in out[401:])

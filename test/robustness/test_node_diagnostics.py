@@ -217,12 +217,12 @@ def test_ukf_node_drops_unusable_measurements_with_a_reason_and_flags_resets(rcl
         }
         assert level == 0, message
         # a NaN forced into the state: the filter resets (WARN), twice before the next report: ERROR
-        node.estimator._x[1] = math.nan
+        node.estimator._h.x[1] = math.nan  # the output filter's v
         measure()
         level, message, values = _status(node)
         assert level == 1 and "filter reset 1 times" in message and values["filter health"] == "reset"
         for _ in range(2):
-            node.estimator._x[1] = math.nan
+            node.estimator._h.x[1] = math.nan  # the output filter's v
             measure()
         level, message, _ = _status(node)
         assert level == 2 and "filter reset 2 times" in message, message

@@ -88,7 +88,7 @@ def test_fault_is_counted_kept_from_the_filter_and_estimates_recover(scenario, r
     assert max(abs(a.v - b.v) for a, b in pairs) <= case.max_v
     fault_end = T0 + int(case.window[1] * NS)
     assert recovery(reference.estimates, out.estimates, fault_end, stamp_map=to_reference) <= case.max_recovery
-    assert final_difference(reference.estimates, out.estimates) < 0.01  # the final r(v) within 1 %
+    assert final_difference(reference.estimates, out.estimates) < case.max_final  # the final r(v) (1 %)
 
 
 def test_without_the_position_gate_a_multipath_jump_would_spoil_r(scenario, reference, tmp_path):

@@ -96,10 +96,21 @@ class UKFConfig(ParamSet):
     )
     coast_confirm_time: float = param(
         20.0,
-        "u = 0 is taken as known when both the published effort (accel_window fit) and the effort from a linear fit "
-        "of the speed over this (covered) window lie in the coasting band",
+        "exploit_known: u = 0 is taken as known when the effort from a linear fit of the measured speeds over this "
+        "(covered) window lies in the coasting band",
         unit="s",
         low=0.0,
+    )
+    coast_confirm_ahead: float = param(
+        10.0,
+        "exploit_known: a coasting step informs the resistance only when the confirmation also holds on the windows "
+        "ending at every sample up to this long after it (a traction ramp that starts inside the step shows only "
+        "later; after a hole in the speeds a window shorter than half coast_confirm_time is not tested); the "
+        "resistance filter, which learns r, runs this far behind the latest measurement and an output filter brings "
+        "s and v to it, so the published r lags by this much (docs/estimator.md); 0: past samples only, one filter",
+        unit="s",
+        low=0.0,
+        high=600.0,
     )
     coast_max_residual: float = param(
         0.3,

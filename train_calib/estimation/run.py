@@ -1,4 +1,5 @@
-"""Whole-run API: the filter over a MeasurementSeries, and the offline unscented RTS smoother."""
+"""Whole-run API: the filter over a MeasurementSeries, the resistance filter's own trajectory, and the offline
+unscented RTS smoother."""
 
 from __future__ import annotations
 
@@ -45,9 +46,10 @@ def estimate_run(
     )
     rows = [None] * n
     process = est._process
+    h = est._h
     for i, args in enumerate(zip(*cols)):
         rows[i] = process(*args)
-        packed[i] = est._P
+        packed[i] = h.P
     if n:
         table = np.array(rows, dtype=float)
         out.stamp_ns[:] = series.stamp_ns
@@ -62,6 +64,51 @@ def estimate_run(
     return out
 
 
+def resistance_run(
+    series: MeasurementSeries,
+    train: TrainSpec,
+    config: UKFConfig | None = None,
+    initial: Davis | None = None,
+    safeguards: SafeguardConfig | None = None,
+) -> tuple[EstimateSeries, EstimateSeries]:
+    """(published estimates, the resistance filter's own trajectory) over the run.
+
+    With look-ahead (``exploit_known``, ``coast_confirm_ahead`` > 0) the resistance filter runs behind the
+    published estimate (ResistanceEstimator): its trajectory is one UKF over every sample, with the effort it
+    used on each step (``input_effort``, ``decoupled``, ``effort_known``), flushed at the end of the series. Row
+    k is the filter after sample k; s, v, r, covariance, resistance, input_effort, dt, decoupled, effort_known,
+    health are its own, the other fields the published ones. Without look-ahead the two are the same series.
+    """
+    est = ResistanceEstimator(train, config, initial, safeguards)
+    if not est._split:
+        pub = estimate_run(series, train, estimator=est)
+        return pub, pub
+    est._trace = trace = []
+    pub = estimate_run(series, train, estimator=est)
+    est.flush()
+    out = pub.select(np.arange(len(pub)))
+    n = len(out)
+    filled = np.zeros(n, dtype=bool)
+    state = out.state.copy()
+    packed = np.empty((n, 15))
+    for arrival, x, p, u, dt, g, decoupled, known, health in trace:
+        k = arrival - 1  # arrivals count update() calls from 1: one per sample of the series
+        state[k] = x
+        packed[k] = p
+        out.input_effort[k], out.dt[k], out.track_force[k] = u, dt, g
+        out.decoupled[k], out.effort_known[k], out.health[k] = decoupled, known, health
+        filled[k] = True
+    for k in range(n):  # samples the filter did not use (rejected): its state stays, no step
+        if not filled[k]:
+            if k > 0:
+                state[k], packed[k] = state[k - 1], packed[k - 1]
+            out.dt[k], out.effort_known[k], out.decoupled[k] = 0.0, False, False
+    out.s[:], out.v[:], out.r0[:], out.r1[:], out.r2[:] = state.T
+    out.covariance[:] = packed[:, UPPER_INDEX]
+    out.resistance[:] = out.r0 + (out.r1 + out.r2 * out.v) * out.v
+    return pub, out
+
+
 def smooth_run(
     series: MeasurementSeries,
     train: TrainSpec,
@@ -69,38 +116,41 @@ def smooth_run(
     initial: Davis | None = None,
     estimates: EstimateSeries | None = None,
 ) -> EstimateSeries:
-    """Offline unscented Rauch-Tung-Striebel smoother (Sarkka 2008) over the filtered run.
+    """Offline unscented Rauch-Tung-Striebel smoother (Sarkka 2008) over the resistance filter's run.
 
     The backward pass reuses each forward step's input (effort u, track force g, dt, decoupling) and
-    the same closed-form unscented transform; the chain is cut at run starts, gaps and resets. Returns
-    a copy of ``estimates`` (computed when not given) with s, v, r0, r1, r2, covariance and resistance
-    smoothed (r clipped at 0); effort, acceleration, nis, health and the rest stay the forward values.
+    the same closed-form unscented transform; the chain is cut at run starts, gaps and resets. The forward
+    pass is the resistance filter's trajectory (``resistance_run``: with look-ahead it runs behind the published
+    estimate). Returns a copy of ``estimates`` (the published ones; computed when not given) with s, v, r0, r1,
+    r2, covariance and resistance smoothed (r clipped at 0); effort, acceleration, nis, health and the rest stay
+    the published values.
     """
     est = ResistanceEstimator(train, config, initial)
-    fwd = estimates if estimates is not None else estimate_run(series, train, config, initial)
-    out = fwd.select(np.arange(len(fwd)))
+    pub, fwd = resistance_run(series, train, config, initial)
+    out = (estimates if estimates is not None else pub).select(np.arange(len(fwd)))
     n = len(fwd)
     if n < 2:
         return out
     xs = fwd.state.copy()
     ps = fwd.covariance.copy()
     iu = np.triu_indices(5)
+    f = est._h
     for k in range(n - 2, -1, -1):
         dt = float(fwd.dt[k + 1])
         if dt <= 0.0 or fwd.run_id[k + 1] != fwd.run_id[k] or fwd.health[k + 1] == HEALTH_RESET:
             continue
         xk = fwd.state[k]
         pk = fwd.covariance[k]
-        est._x = [float(v) for v in xk]
-        est._P = tuple(float(v) for v in pk[iu])
-        chol = cholesky(est._P)
+        f.x = [float(v) for v in xk]
+        f.P = tuple(float(v) for v in pk[iu])
+        chol = cholesky(f.P)
         if chol is None:
             continue
-        est._L = chol
-        est._predict(dt, float(fwd.input_effort[k + 1]), float(fwd.track_force[k]), bool(fwd.decoupled[k + 1]))
-        x_bar = np.array(est._x)
-        p_bar = unpack(est._P)
-        m = np.array(est._m)
+        f.L = chol
+        est._predict(f, dt, float(fwd.input_effort[k + 1]), float(fwd.track_force[k]), bool(fwd.decoupled[k + 1]))
+        x_bar = np.array(f.x)
+        p_bar = unpack(f.P)
+        m = np.array(f.m)
         b = np.array([0.5 * dt * dt, dt, 0.0, 0.0, 0.0])
         cross = pk.copy()
         cross[:, 0] += dt * pk[:, 1]  # P A^T

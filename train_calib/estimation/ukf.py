@@ -22,11 +22,23 @@ which is algebraically the weighted sums of eq. 10-11 (van der Merwe weights, eq
 forming the 11 sigma points or their huge cancelling weights (w0 = -1.7e6 with Table 1), and the
 update (eq. 13-18) with a linear h reduces to a 2x2 Kalman update. A test checks the result
 against filterpy's UnscentedKalmanFilter + MerweScaledSigmaPoints.
+
+Known effort with look-ahead (``effort_mode: exploit_known``, ``coast_confirm_ahead`` > 0): whether a step
+was coasting (u = 0 known) is decided only when the speeds up to ``coast_confirm_ahead`` after it are in
+(a traction ramp that starts inside the step is invisible in the past samples). The *resistance filter*
+therefore runs that far behind the latest measurement, on the steps whose decision is final; it is the
+filter that learns r, and the one the filterpy test and the smoother use (``resistance_run``). An *output
+filter* at the latest measurement brings s and v up to date: the same UKF step with r as a consider
+parameter fixed at the resistance filter's latest estimate, the effort decided at once from past samples.
+The published estimate is the output filter's s, v and the resistance filter's r (covariance block
+diagonal); both are causal. Without look-ahead the two are one filter.
 """
 
 from __future__ import annotations
 
 import math
+from collections import deque
+from functools import lru_cache
 
 import numpy as np
 from scipy.stats import chi2
@@ -48,6 +60,47 @@ MAX_POWER = 1.0e9  # W
 VARIANCE_RANGE = (1e-12, 1e12)  # m^2 or (m/s)^2
 _CLIP_ONLY = (1,)  # v >= 0 is clipped: a speed below 0 says nothing about r (standstill noise would move it)
 RELOCK_COUNT = 3  # gated positions in a row (besides gate_relock_time) before s is re-initialised there
+_JITTER = 0.02  # relative tolerance on time windows for stamp jitter (as SpeedSlope)
+
+
+@lru_cache(maxsize=64)
+def _chi2_quantile(q: float, dof: int) -> float:
+    """Chi-square quantile (cached: a filter is made per run and per node parameter change)."""
+    return float(chi2.ppf(q, dof))
+
+
+@lru_cache(maxsize=16)
+def _nis_limits(q: float, window: int) -> tuple[float, ...]:
+    """Chi-square quantile q of 0..2 window degrees of freedom (inf for 0)."""
+    return (math.inf, *(float(x) for x in chi2.ppf(q, range(1, 2 * window + 1))))
+
+
+_SEVERITY = {HEALTH_OK: 0, HEALTH_DEGRADED: 1, HEALTH_REPAIRED: 2, HEALTH_RESET: 3}
+
+
+def worse(a: int, b: int) -> int:
+    """The more severe of two health flags: RESET over REPAIRED over DEGRADED over OK (as one filter step sets
+    them: an inconsistent NIS window flags DEGRADED only when nothing else happened)."""
+    return a if _SEVERITY[a] >= _SEVERITY[b] else b
+
+
+class _Filter:
+    """One (s, v, r0, r1, r2) filter: mean ``x``, packed covariance ``P`` and its Cholesky factor ``L``; ``m``
+    (cross-covariance of x and the acceleration, for the smoother) and ``q_sv`` (the (s, v) process noise left out
+    of the gain) of the last prediction."""
+
+    __slots__ = ("L", "P", "m", "q_sv", "x")
+
+    def __init__(self) -> None:
+        self.x: list[float] | None = None
+        self.P: tuple[float, ...] = ()
+        self.L: tuple[float, ...] = ()
+        self.m: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0, 0.0)
+        self.q_sv: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+    def assign(self, other: _Filter) -> None:
+        self.x = list(other.x) if other.x is not None else None
+        self.P, self.L, self.m, self.q_sv = other.P, other.L, other.m, other.q_sv
 
 
 class ResistanceEstimator:
@@ -56,6 +109,8 @@ class ResistanceEstimator:
     ``update(m)`` once per measurement (variable dt from the stamps); a new ``run_id`` starts a new
     run (``carry_over``). Never returns NaN or a negative r. Counters for diagnostics: ``counters``.
     ``safeguards``: the position gate and the recovery rules (:class:`SafeguardConfig`, docs/reliability.md).
+    With ``exploit_known`` and ``coast_confirm_ahead`` > 0 the resistance is learnt ``coast_confirm_ahead``
+    behind the latest measurement (module docstring); ``flush()`` uses the measurements still waiting.
     """
 
     def __init__(
@@ -75,6 +130,7 @@ class ResistanceEstimator:
         lam = cfg.lam
         self._c2 = n + lam
         self._c = math.sqrt(self._c2)
+        self._ic = 1.0 / self._c
         self._beta_alpha = cfg.beta - cfg.alpha**2
         self._midpoint = cfg.integration == "midpoint"
         self._exploit = cfg.effort_mode == "exploit_known"
@@ -89,11 +145,15 @@ class ResistanceEstimator:
         self._coast_prior = cfg.coast_reference == "prior"
         self._prior_r = self.prior.as_tuple()
         self._coast_slope = SpeedSlope(cfg.coast_confirm_time)
-        nw = cfg.nis_window
-        dofs = np.arange(0, 2 * nw + 1)
-        self._nis_limit = [math.inf] + [float(x) for x in chi2.ppf(cfg.nis_quantile, dofs[1:])]
-        self._gate = float(chi2.ppf(cfg.known_effort_gate, 1)) if cfg.known_effort_gate < 1.0 else math.inf
-        self._position_gate = float(chi2.ppf(guard.position_gate, 1)) if guard.position_gate < 1.0 else math.inf
+        self._coast_span = (1.0 - _JITTER) * cfg.coast_confirm_time - 1e-6
+        self._ahead = cfg.coast_confirm_ahead if self._exploit else 0.0
+        self._split = self._ahead > 0.0
+        self._ahead_span = (1.0 - _JITTER) * self._ahead - 1e-6
+        # look-ahead windows are tested from half the confirmation time on (own windows need all of it)
+        self._ahead_test_span = min(self._coast_span, 0.5 * cfg.coast_confirm_time) if self._split else self._coast_span
+        self._nis_limit = _nis_limits(cfg.nis_quantile, cfg.nis_window)
+        self._gate = _chi2_quantile(cfg.known_effort_gate, 1) if cfg.known_effort_gate < 1.0 else math.inf
+        self._position_gate = _chi2_quantile(guard.position_gate, 1) if guard.position_gate < 1.0 else math.inf
         self._relock_ns = int(guard.gate_relock_time * 1e9)
         self._gate_accel = guard.gate_accel_std
         self._nis_reset_steps = guard.nis_reset_windows * cfg.nis_window
@@ -109,6 +169,7 @@ class ResistanceEstimator:
             "known_effort_rejected": 0,
             "known_effort_power": 0,
             "known_effort_power_coast": 0,
+            "coast_unconfirmed": 0,
             "nonpositive_dt": 0,
             "invalid_input": 0,
             "position_missing": 0,
@@ -118,39 +179,55 @@ class ResistanceEstimator:
             "nis_resets": 0,
         }
         self.rejected: str | None = None  # why the latest measurement was not used (None: it was)
-        self._x: list[float] | None = None
-        self._P: tuple[float, ...] = ()
-        self._L: tuple[float, ...] = ()
+        self._h = _Filter()  # the published (output) filter
+        self._rf = _Filter() if self._split else self._h  # the resistance filter (the same one without look-ahead)
+        self._pending: deque[tuple] = deque()  # measurements the resistance filter has not used yet
+        self._trace: list[tuple] | None = None  # resistance_run: the resistance filter's steps
         self._keep_next = False
         self._run_id: int | None = None
-        self._q_sv = (0.0, 0.0, 0.0)
-        self._m = (0.0, 0.0, 0.0, 0.0, 0.0)
         self._reset_run_state()
 
     # -- public API -----------------------------------------------------------------------------
     @property
     def state(self) -> np.ndarray:
         """Current (s, v, r0, r1, r2); NaN before the first measurement."""
-        return np.array(self._x, dtype=float) if self._x is not None else np.full(5, np.nan)
+        h, rf = self._h, self._rf
+        if h.x is None or rf.x is None:
+            return np.full(5, np.nan)
+        return np.array([h.x[0], h.x[1], rf.x[2], rf.x[3], rf.x[4]], dtype=float)
 
     @property
     def covariance(self) -> np.ndarray:
         """Current 5x5 covariance over (s, v, r0, r1, r2); NaN before the first measurement."""
-        return unpack(self._P) if self._x is not None else np.full((5, 5), np.nan)
+        h, rf = self._h, self._rf
+        if h.x is None or rf.x is None:
+            return np.full((5, 5), np.nan)
+        return unpack(self._published_cov() if self._split else h.P)
 
     @property
     def davis(self) -> Davis:
-        x = self._x if self._x is not None else [0.0, 0.0, *self.prior.as_tuple()]
+        x = self._rf.x if self._rf.x is not None else [0.0, 0.0, *self.prior.as_tuple()]
         return Davis(x[2], x[3], x[4])
 
     def reset(self, keep_resistance: bool = False) -> None:
         """Forget the run: the next measurement re-initialises s and v; r (and its covariance) are kept
-        when ``keep_resistance`` (times ``carry_over_inflation``), else taken from the prior."""
-        self._keep_next = bool(keep_resistance) and self._x is not None
+        when ``keep_resistance`` (times ``carry_over_inflation``), else taken from the prior. Measurements
+        still waiting for the resistance filter are used first (``flush``)."""
+        self.flush()
+        self._keep_next = bool(keep_resistance) and self._h.x is not None
         if not self._keep_next:
-            self._x = None
+            self._h.x = None
+            self._rf.x = None
         self._run_id = None
         self._reset_run_state()
+
+    def flush(self) -> None:
+        """Let the resistance filter use every measurement still waiting for its look-ahead (end of a
+        recording): their coasting is not confirmed (computed effort), measured traction power is used."""
+        while self._pending:
+            self._resistance_step(self._pending.popleft(), False)
+        if self._split and self._h.x is not None and self._rf.x is not None:
+            self._sync()
 
     def update(self, m: Measurement) -> EstimateSample:
         """Process one measurement; returns the estimate after it."""
@@ -176,7 +253,7 @@ class ResistanceEstimator:
             r0=r0,
             r1=r1,
             r2=r2,
-            covariance=unpack(self._P),
+            covariance=unpack(self._h.P),
             effort=effort,
             acceleration=accel,
             resistance=resistance,
@@ -190,21 +267,26 @@ class ResistanceEstimator:
 
     # -- internals ------------------------------------------------------------------------------
     def _reset_run_state(self) -> None:
+        self._pending.clear()
         self._slope.reset()
         self._last_stamp = 0
         self._zv_prev = 0.0
         self._g_prev = 0.0
         self._pw_prev = (False, 0.0, 0.0)
         self._coast_slope.reset()
+        self._coast_pass = False  # the confirmation window ending at the latest sample passed
+        self._index = 0  # samples of the run so far
+        self._last_fail = 0  # the latest sample whose confirmation window was tested and failed (look-ahead)
         self._last_effort = 0.0
         self._last_accel = 0.0
         self._last_input = 0.0
-        self._nis_ring: list[tuple[float, int]] = []
+        self._nis_ring: deque[tuple[float, int]] = deque()
         self._nis_sum = 0.0
         self._nis_dof = 0
         self._degraded_steps = 0  # consecutive DEGRADED steps (NIS recovery rule)
         self._gated_since: int | None = None  # stamp of the first position gated in a row (relock rule)
         self._gated_count = 0
+        self._relocked = False
 
     def _initial_cov(self, r: tuple[float, float, float]) -> list[float]:
         cfg = self.config
@@ -219,34 +301,54 @@ class ResistanceEstimator:
         return p
 
     def _initialise(self, zs: float, zv: float, keep: bool, inflation: float = 1.0) -> None:
-        """(Re)start at the measurement; keep: r and its covariance block (times inflation) from the current state."""
-        if keep and self._x is not None and all(math.isfinite(xi) and xi >= 0.0 for xi in self._x[2:]):
-            r = (self._x[2], self._x[3], self._x[4])
-            old = self._P
+        """(Re)start both filters at the measurement (run start, gap); keep: r and its covariance block (times
+        inflation) from the resistance filter."""
+        self._initialise_filter(self._h, zs, zv, keep, inflation)
+        if self._split:
+            self._rf.assign(self._h)
+
+    def _initialise_filter(self, f: _Filter, zs: float, zv: float, keep: bool, inflation: float = 1.0) -> None:
+        """Restart filter f at the measurement; keep: r and its covariance block (times inflation) from the
+        resistance filter when they are finite and r >= 0, else (or if that is not positive definite) the prior."""
+        src = self._rf
+        if keep and src.x is not None and all(math.isfinite(xi) and xi >= 0.0 for xi in src.x[2:]):
+            r = (src.x[2], src.x[3], src.x[4])
+            old = src.P
             p = self._initial_cov(r)
             for idx in (9, 10, 11, 12, 13, 14):
                 p[idx] = old[idx] * inflation
         else:
-            r = self.prior.as_tuple()
+            r = self._prior_r
             p = self._initial_cov(r)
-        self._x = [zs, max(zv, 0.0), r[0], r[1], r[2]]
-        if self._set_cov(tuple(p)) != HEALTH_OK:
-            self._x[2:] = list(self.prior.as_tuple())
-            self._set_cov(tuple(self._initial_cov(self.prior.as_tuple())))
+        f.x = [zs, max(zv, 0.0), r[0], r[1], r[2]]
+        if self._set_cov(f, tuple(p)) != HEALTH_OK:
+            f.x[2:] = list(self._prior_r)
+            self._set_cov(f, tuple(self._initial_cov(self._prior_r)))
 
-    def _set_cov(self, p: tuple[float, ...]) -> int:
+    def _set_cov(self, f: _Filter, p: tuple[float, ...]) -> int:
         """Store P and its factor; repair when not positive definite. Returns a health flag."""
         chol = cholesky(p)
         if chol is not None:
-            self._P, self._L = p, chol
+            f.P, f.L = p, chol
             return HEALTH_OK
         fixed = repair(p, self.config.repair_min_eigenvalue)
         chol = cholesky(fixed) if fixed is not None else None
         if chol is None:
             return HEALTH_RESET
         self.counters["repairs"] += 1
-        self._P, self._L = fixed, chol
+        f.P, f.L = fixed, chol
         return HEALTH_REPAIRED
+
+    def _published_cov(self) -> tuple[float, ...]:
+        """The output filter's (s, v) block and the resistance filter's r block (no cross-covariance)."""
+        hp, mp = self._h.P, self._rf.P
+        return (hp[0], hp[1], 0.0, 0.0, 0.0, hp[5], 0.0, 0.0, 0.0, mp[9], mp[10], mp[11], mp[12], mp[13], mp[14])
+
+    def _sync(self) -> int:
+        """The output filter takes the resistance filter's r and r covariance (no cross-covariance)."""
+        hx, mx = self._h.x, self._rf.x
+        hx[2], hx[3], hx[4] = mx[2], mx[3], mx[4]
+        return self._set_cov(self._h, self._published_cov())
 
     def _process(
         self,
@@ -263,80 +365,73 @@ class ResistanceEstimator:
         power_regen: float,
     ) -> tuple:
         cfg = self.config
-        self.counters["updates"] += 1
+        counters = self.counters
+        counters["updates"] += 1
         health = HEALTH_OK
         self.rejected = None
+        h = self._h
         if not (math.isfinite(zv) and math.isfinite(g)):
             self.rejected = "nan"
         elif zv < 0.0:
             self.rejected = "negative_speed"
         elif zv > MAX_SPEED or abs(g) > MAX_TRACK_FORCE:
             self.rejected = "implausible"
-        elif self._x is not None and run_id == self._run_id and stamp_ns < self._last_stamp:
+        elif h.x is not None and run_id == self._run_id and stamp_ns < self._last_stamp:
             self.rejected = "out_of_order"
         if self.rejected is not None:
             return self._rejected(stamp_ns)
         if not abs(zs) <= MAX_POSITION:  # NaN too: no position, a speed-only update
             if math.isfinite(zs):
-                self.counters["input_repaired"] += 1
+                counters["input_repaired"] += 1
             s_measured = False
-            zs = self._x[0] if self._x is not None and run_id == self._run_id else 0.0
-        if not (VARIANCE_RANGE[0] <= s_var <= VARIANCE_RANGE[1] and VARIANCE_RANGE[0] <= v_var <= VARIANCE_RANGE[1]):
-            self.counters["input_repaired"] += 1  # a variance the filter cannot use: the configured one
-            s_var = s_var if VARIANCE_RANGE[0] <= s_var <= VARIANCE_RANGE[1] else self._rs
-            v_var = v_var if VARIANCE_RANGE[0] <= v_var <= VARIANCE_RANGE[1] else self._rv
+            zs = h.x[0] if h.x is not None and run_id == self._run_id else 0.0
+        lo_var, hi_var = VARIANCE_RANGE
+        if not (lo_var <= s_var <= hi_var and lo_var <= v_var <= hi_var):
+            counters["input_repaired"] += 1  # a variance the filter cannot use: the configured one
+            s_var = s_var if lo_var <= s_var <= hi_var else self._rs
+            v_var = v_var if lo_var <= v_var <= hi_var else self._rv
         if power_valid and not (0.0 <= power_consumed <= MAX_POWER and 0.0 <= power_regen <= MAX_POWER):
-            self.counters["input_repaired"] += 1  # power that is not a power is no power measurement
+            counters["input_repaired"] += 1  # power that is not a power is no power measurement
             power_valid, power_consumed, power_regen = False, 0.0, 0.0
         # ---- run start / gap --------------------------------------------------------------------
-        if self._x is None or run_id != self._run_id:
-            keep = self._x is not None and (self._keep_next or cfg.carry_over == "keep")
+        if h.x is None or run_id != self._run_id:
+            keep = h.x is not None and (self._keep_next or cfg.carry_over == "keep")
+            self.flush()
             self._reset_run_state()
             self._initialise(zs, zv, keep, cfg.carry_over_inflation)
             self._keep_next = False
             self._run_id = run_id
-            self.counters["runs"] += 1
-            return self._first_sample(stamp_ns, zv, g, power_valid, power_consumed, power_regen, health)
+            counters["runs"] += 1
+            return self._first_sample(stamp_ns, zs, zv, g, power_valid, power_consumed, power_regen, health)
         dt = (stamp_ns - self._last_stamp) * 1e-9
         if dt > cfg.max_dt:
-            self.counters["gaps"] += 1
-            self.counters["resets"] += 1
+            counters["gaps"] += 1
+            counters["resets"] += 1
+            self.flush()
             self._reset_run_state()
             self._initialise(zs, zv, True)
-            return self._first_sample(stamp_ns, zv, g, power_valid, power_consumed, power_regen, HEALTH_RESET)
+            return self._first_sample(stamp_ns, zs, zv, g, power_valid, power_consumed, power_regen, HEALTH_RESET)
 
-        x = self._x
-        _, v, r0, r1, r2 = x
+        split = self._split
+        x = h.x
         zv_prev = self._zv_prev
         g_prev = self._g_prev
         t = stamp_ns * 1e-9
         a_obs = self._slope.push(t, zv)
-        a_coast = self._coast_slope.slope if self._exploit else 0.0  # up to the previous sample (no selection on z_k)
-        known = False
-        decoupled = False
+        if cfg.use_measurement_variance:
+            rs, rv = s_var, v_var
+        else:
+            rs, rv = self._rs, self._rv
+        known = decoupled = coast_eligible = provisional = False
+        power_u = power_kind = None
         if dt > 0.0:
             # ---- applied effort ---------------------------------------------------------------
             dz = zv - zv_prev
-            a_two = dz / dt
+            v = x[1]
             v_ref = v + 0.5 * dz if self._midpoint else v
-            r_ref = r0 + (r1 + r2 * v_ref) * v_ref
+            r_ref = x[2] + (x[3] + x[4] * v_ref) * v_ref
             effort = a_obs + r_ref + g_prev
-            u = a_two + r_ref + g_prev
-            if self._coast_prior:
-                p0, p1, p2 = self._prior_r
-                r_dec = p0 + (p1 + p2 * v_ref) * v_ref
-            else:
-                r_dec = r_ref
-            # coasting band [lo, hi]; against a hold (u = r + g), only the side towards r + g is narrowed
-            hi = cfg.coast_effort_tolerance
-            lo = -hi
-            if cfg.coast_vs_hold:
-                hold = r_dec + g_prev
-                if hold > 0.0:
-                    hi = min(hi, 0.5 * hold)
-                else:
-                    lo = max(lo, 0.5 * hold)
-            known_u = None
+            u = dz / dt + r_ref + g_prev
             if self._exploit and zv_prev >= cfg.known_effort_min_speed and zv >= cfg.known_effort_min_speed:
                 traction = None
                 pv0, pc0, pr0 = self._pw_prev
@@ -347,84 +442,105 @@ class ResistanceEstimator:
                         w0 = self._power.wheel_power(pc0)
                         w1 = self._power.wheel_power(power_consumed)
                         if w0 > cfg.power_threshold and w1 > cfg.power_threshold:
-                            known_u = 0.5 * (w0 / zv_prev + w1 / zv)
-                            kind = "known_effort_power"
+                            power_u = 0.5 * (w0 / zv_prev + w1 / zv)
+                            power_kind = "known_effort_power"
                         elif w0 > cfg.power_threshold or w1 > cfg.power_threshold:
                             traction = False  # traction switched within the step
                         elif effort > -4.0 * cfg.coast_effort_tolerance:
-                            known_u = 0.0  # no traction, no electric brake, not clearly braking: coasting
-                            kind = "known_effort_power_coast"
-                if (
-                    known_u is None
-                    and traction is None
-                    and lo <= a_coast + r_dec + g_prev <= hi
-                    and self._coast_slope.span >= 0.98 * cfg.coast_confirm_time - 1e-6
-                    and self._coast_slope.residual_std() <= cfg.coast_max_residual
-                ):
-                    known_u = 0.0
-                    kind = "known_effort_coast"
+                            power_u = 0.0  # no traction, no electric brake, not clearly braking: coasting
+                            power_kind = "known_effort_power_coast"
+                coast_eligible = power_u is None and traction is None
+            known_u, kind = power_u, power_kind
+            if coast_eligible and self._coast_pass:  # the confirmation window up to the previous sample
+                known_u, kind = 0.0, "known_effort_coast"
+                provisional = True
             if known_u is not None:
-                saved = (list(x), self._P, self._L, self._m, self._q_sv)
-                self._predict(dt, known_u, g_prev, False)
-                nu = zv - x[1]
-                if nu * nu <= self._gate * (self._P[5] + (v_var if cfg.use_measurement_variance else self._rv)):
+                if self._known_predict(h, dt, known_u, g_prev, zv, rv):
                     known = True
                     u = effort = known_u
-                    self.counters[kind] += 1
-                else:
-                    self.counters["known_effort_rejected"] += 1
-                    x[:], self._P, self._L, self._m, self._q_sv = saved
+                    if not split:
+                        counters[kind] += 1
+                elif not split:
+                    counters["known_effort_rejected"] += 1
             decoupled = self._decouple and not known
             if not known:
-                self._predict(dt, u, g_prev, decoupled)
+                self._predict(h, dt, u, g_prev, decoupled)
             self._last_effort, self._last_accel, self._last_input = effort, a_obs, u
         else:
-            self.counters["nonpositive_dt"] += 1
+            counters["nonpositive_dt"] += 1
             dt = 0.0
             effort, u = self._last_effort, self._last_input
             a_obs = self._last_accel
-        if self._exploit:
-            self._coast_slope.push(t, zv)
         # ---- measurement update ---------------------------------------------------------------------
-        if cfg.use_measurement_variance:
-            rs, rv = s_var, v_var
-        else:
-            rs, rv = self._rs, self._rv
         if not s_measured:
-            self.counters["position_missing"] += 1
+            counters["position_missing"] += 1
         gated_nis = 0.0
+        self._relocked = False
         if s_measured:
             s_measured, health, gated_nis = self._gate_position(stamp_ns, zs, rs, dt, health)
-        nis, dof = self._update(zs, zv, rs, rv, s_measured, dt, decoupled)
+        nis, dof = self._update(h, zs, zv, rs, rv, s_measured, dt, decoupled or split)
         if gated_nis:  # a gated position is an inconsistent innovation: it counts in the NIS window
             nis, dof = nis + gated_nis, dof + 1
         # ---- safeguards -------------------------------------------------------------------------------
-        x = self._x
-        if not math.isfinite(sum(x) + sum(self._P) + nis):  # NaN or inf anywhere
+        x = h.x
+        if not math.isfinite(sum(x) + sum(h.P) + nis):  # NaN or inf anywhere
             health = self._hard_reset(zs, zv)
             nis, dof = 0.0, 0
+        elif split:
+            if x[1] < 0.0:  # r is the resistance filter's: only the speed bound here
+                x[1] = 0.0
         else:
-            if project_nonnegative(x, self._P, _NONNEG, cfg.nonnegative, clip_only=_CLIP_ONLY):
-                self.counters["projections"] += 1
-            flag = self._set_cov(self._P)
+            if (x[1] < 0.0 or x[2] < 0.0 or x[3] < 0.0 or x[4] < 0.0) and project_nonnegative(
+                x, h.P, _NONNEG, cfg.nonnegative, clip_only=_CLIP_ONLY
+            ):
+                counters["projections"] += 1
+            flag = self._set_cov(h, h.P)
             if flag == HEALTH_RESET:
                 health = self._hard_reset(zs, zv)
             elif flag == HEALTH_REPAIRED:
                 health = HEALTH_REPAIRED
+        nis_reset = False
         if self._nis_push(nis, dof):
             self._degraded_steps += 1
             if self._nis_reset_steps and self._degraded_steps >= self._nis_reset_steps:
                 health = self._nis_reset(zs, zv)
+                nis_reset = True
             elif health == HEALTH_OK:
                 health = HEALTH_DEGRADED
-                self.counters["degraded"] += 1
+                counters["degraded"] += 1
         else:
             self._degraded_steps = 0
         self._last_stamp = stamp_ns
         self._zv_prev = zv
         self._g_prev = g
         self._pw_prev = (power_valid, power_consumed, power_regen)
-        x = self._x
+        if self._exploit:
+            self._coast_confirmation(t, zv, h.x[1], g)
+        if split:
+            self._pending.append(
+                (
+                    self._index,
+                    t,
+                    dt,
+                    zs,
+                    zv,
+                    zv_prev,
+                    g_prev,
+                    g,
+                    s_measured,
+                    rs,
+                    rv,
+                    provisional,  # coasting eligible and the window up to the previous sample passed
+                    power_u,
+                    power_kind,
+                    self._relocked,
+                    nis_reset,
+                    counters["updates"],
+                    provisional and known,
+                )
+            )
+            health = worse(health, worse(self._advance(t), self._sync()))
+        x = h.x
         vf = x[1]
         resistance = x[2] + (x[3] + x[4] * vf) * vf
         if not math.isfinite(effort + a_obs + u):  # the step that needed a reset: the effort of the restarted state
@@ -433,15 +549,120 @@ class ResistanceEstimator:
             self._last_effort, self._last_accel, self._last_input = effort, a_obs, u
         return (x[0], vf, x[2], x[3], x[4], effort, a_obs, resistance, g, nis, known, health, dt, u, decoupled)
 
-    def _first_sample(self, stamp_ns, zv, g, power_valid, pc, pr, health) -> tuple:
-        self._slope.push(stamp_ns * 1e-9, zv)
+    def _coast_confirmation(self, t: float, zv: float, v: float, g: float) -> None:
+        """Push the sample into the confirmation window and test the window ending here: covered, the speeds on a
+        line (residual), and the effort of its slope in the coasting band at the filtered speed v and track force g
+        (band cut at (r + g) / 2 on the hold side, ``coast_vs_hold``; r from the prior or the estimate)."""
+        cfg = self.config
+        cs = self._coast_slope
+        cs.push(t, zv)
+        self._index += 1
+        ok = False
+        span = cs.span
+        if span >= self._ahead_test_span:
+            p0, p1, p2 = self._prior_r if self._coast_prior else self._rf.x[2:5]
+            r_dec = p0 + (p1 + p2 * v) * v
+            hi = cfg.coast_effort_tolerance
+            lo = -hi
+            if cfg.coast_vs_hold:
+                hold = r_dec + g
+                if hold > 0.0:
+                    hi = min(hi, 0.5 * hold)
+                else:
+                    lo = max(lo, 0.5 * hold)
+            ok = lo <= cs.slope + r_dec + g <= hi and cs.residual_std() <= cfg.coast_max_residual
+            if not ok:  # a failed test (a window too short to test, after a hole in the speeds, is no evidence)
+                self._last_fail = self._index
+        self._coast_pass = ok and span >= self._coast_span
+
+    def _advance(self, t: float) -> int:
+        """The resistance filter uses every waiting measurement whose look-ahead is complete at time t (s): a
+        coasting step is confirmed when every confirmation window from the one ending at its start to the latest
+        passed. Returns the worst health of those steps."""
+        pending = self._pending
+        horizon = t - self._ahead_span
+        health = HEALTH_OK
+        while pending and pending[0][1] <= horizon:
+            item = pending.popleft()
+            health = worse(health, self._resistance_step(item, item[11] and self._last_fail < item[0] - 1))
+        return health
+
+    def _resistance_step(self, item: tuple, confirmed: bool) -> int:
+        """One step of the resistance filter (the same UKF step as the output filter's, on the decided effort)."""
+        (_, _, dt, zs, zv, zv_prev, g_prev, g, s_measured, rs, rv, coast, power_u, kind, relock, nis_reset, arrival,
+         provisional) = item  # fmt: skip
+        f = self._rf
+        counters = self.counters
+        known = decoupled = False
+        u = 0.0
+        if dt > 0.0:
+            x = f.x
+            dz = zv - zv_prev
+            v_ref = x[1] + 0.5 * dz if self._midpoint else x[1]
+            u = dz / dt + x[2] + (x[3] + x[4] * v_ref) * v_ref + g_prev
+            known_u = power_u
+            if known_u is None and coast:
+                if confirmed:
+                    known_u, kind = 0.0, "known_effort_coast"
+                elif provisional:
+                    counters["coast_unconfirmed"] += 1
+            if known_u is not None:
+                if self._known_predict(f, dt, known_u, g_prev, zv, rv):
+                    known = True
+                    u = known_u
+                    counters[kind] += 1
+                else:
+                    counters["known_effort_rejected"] += 1
+            decoupled = self._decouple and not known
+            if not known:
+                self._predict(f, dt, u, g_prev, decoupled)
+        if relock:  # the output filter re-initialised s at this measurement
+            f.x[0] = zs
+            p = list(f.P)
+            p[0], p[1], p[2], p[3], p[4] = rs, 0.0, 0.0, 0.0, 0.0
+            f.P = tuple(p)
+        nis, _ = self._update(f, zs, zv, rs, rv, s_measured, dt, decoupled)
+        x = f.x
+        if not math.isfinite(sum(x) + sum(f.P) + nis):
+            health = self._hard_reset_filter(f, zs, zv)
+        else:
+            if (x[1] < 0.0 or x[2] < 0.0 or x[3] < 0.0 or x[4] < 0.0) and project_nonnegative(
+                x, f.P, _NONNEG, self.config.nonnegative, clip_only=_CLIP_ONLY
+            ):
+                counters["projections"] += 1
+            health = self._set_cov(f, f.P)
+            if health == HEALTH_RESET:
+                health = self._hard_reset_filter(f, zs, zv)
+        if nis_reset:  # the output filter restarted s and v here (NIS rule)
+            self._restart_speed(f, zs, zv)
+        if self._trace is not None:
+            self._trace.append((arrival, tuple(f.x), f.P, u, dt, g, decoupled, known, health))
+        return health
+
+    def _known_predict(self, f: _Filter, dt: float, known_u: float, g: float, zv: float, rv: float) -> bool:
+        """Predict f with the known effort; False (f unchanged) when the speed innovation fails the gate."""
+        saved = (list(f.x), f.P, f.L, f.m, f.q_sv)
+        self._predict(f, dt, known_u, g, False)
+        nu = zv - f.x[1]
+        if nu * nu <= self._gate * (f.P[5] + rv):
+            return True
+        f.x[:] = saved[0]
+        f.P, f.L, f.m, f.q_sv = saved[1], saved[2], saved[3], saved[4]
+        return False
+
+    def _first_sample(self, stamp_ns, zs, zv, g, power_valid, pc, pr, health) -> tuple:
+        t = stamp_ns * 1e-9
+        self._slope.push(t, zv)
         if self._exploit:
-            self._coast_slope.push(stamp_ns * 1e-9, zv)
+            self._coast_confirmation(t, zv, zv, g)
         self._last_stamp = stamp_ns
         self._zv_prev = zv
         self._g_prev = g
         self._pw_prev = (power_valid, pc, pr)
-        x = self._x
+        x = self._h.x
+        if self._trace is not None and self._split:
+            rf = self._rf
+            self._trace.append((self.counters["updates"], tuple(rf.x), rf.P, 0.0, 0.0, g, False, False, health))
         vf = x[1]
         resistance = x[2] + (x[3] + x[4] * vf) * vf
         return (x[0], vf, x[2], x[3], x[4], 0.0, 0.0, resistance, g, 0.0, False, health, 0.0, 0.0, False)
@@ -450,9 +671,10 @@ class ResistanceEstimator:
         """A sample that cannot be used (NaN or negative speed, NaN track force, stamp older than the last):
         counted, the filter is left as it is, and the current estimate is returned."""
         self.counters["invalid_input"] += 1
-        x = self._x if self._x is not None else [0.0, 0.0, *self.prior.as_tuple()]
-        if self._x is None:
-            self._set_cov(tuple(self._initial_cov(self.prior.as_tuple())))
+        h = self._h
+        x = h.x if h.x is not None else [0.0, 0.0, *self._prior_r]
+        if h.x is None:
+            self._set_cov(h, tuple(self._initial_cov(self._prior_r)))
         vf = x[1]
         resistance = x[2] + (x[3] + x[4] * vf) * vf
         return (
@@ -478,9 +700,10 @@ class ResistanceEstimator:
         ``position_gate`` quantile of its predicted variance is left out (speed-only update); gated for
         ``gate_relock_time`` and at least RELOCK_COUNT measurements in a row, s is re-initialised at the
         measurement (its covariance row reset: variance rs, no correlation): health RESET."""
-        nu = zs - self._x[0]
+        h = self._h
+        nu = zs - h.x[0]
         model = self._gate_accel * 0.5 * dt * dt
-        var = self._P[0] + rs + model * model
+        var = h.P[0] + rs + model * model
         if nu * nu <= self._position_gate * var:
             self._gated_since = None
             self._gated_count = 0
@@ -496,23 +719,28 @@ class ResistanceEstimator:
         self._gated_count = 0
         self.counters["position_relocks"] += 1
         self.counters["resets"] += 1
-        self._x[0] = zs
-        p = list(self._P)
+        self._relocked = True
+        h.x[0] = zs
+        p = list(h.P)
         p[0], p[1], p[2], p[3], p[4] = rs, 0.0, 0.0, 0.0, 0.0
-        self._P = tuple(p)
+        h.P = tuple(p)
         return True, HEALTH_RESET, 0.0
+
+    def _restart_speed(self, f: _Filter, zs: float, zv: float) -> None:
+        """s and v of f restart at the measurement with their initial covariance; r and its covariance block kept."""
+        cfg = self.config
+        f.x[0], f.x[1] = zs, max(zv, 0.0)
+        p = list(f.P)
+        p[0:9] = [cfg.init_std_s**2, 0.0, 0.0, 0.0, 0.0, cfg.init_std_v**2, 0.0, 0.0, 0.0]
+        if self._set_cov(f, tuple(p)) == HEALTH_RESET:
+            self._hard_reset_filter(f, zs, zv)
 
     def _nis_reset(self, zs: float, zv: float) -> int:
         """The innovations stayed inconsistent for ``nis_reset_windows`` NIS windows: s and v restart at the
         measurement with their initial covariance; r and its covariance block are kept (no cross terms)."""
-        cfg = self.config
         self.counters["nis_resets"] += 1
         self.counters["resets"] += 1
-        self._x[0], self._x[1] = zs, max(zv, 0.0)
-        p = list(self._P)
-        p[0:9] = [cfg.init_std_s**2, 0.0, 0.0, 0.0, 0.0, cfg.init_std_v**2, 0.0, 0.0, 0.0]
-        if self._set_cov(tuple(p)) == HEALTH_RESET:
-            return self._hard_reset(zs, zv)
+        self._restart_speed(self._h, zs, zv)
         self._nis_ring.clear()
         self._nis_sum = 0.0
         self._nis_dof = 0
@@ -520,10 +748,14 @@ class ResistanceEstimator:
         return HEALTH_RESET
 
     def _hard_reset(self, zs: float, zv: float) -> int:
-        """Invalid state or covariance: restart s and v at the measurement; r and its covariance block are kept
-        when they are finite and valid (r >= 0, positive definite), else taken from the prior (Table 1)."""
+        """Invalid state or covariance of the output filter: restart s and v at the measurement; r and its
+        covariance block are kept when they are finite and valid (r >= 0, positive definite), else taken from the
+        prior (Table 1)."""
+        return self._hard_reset_filter(self._h, zs, zv)
+
+    def _hard_reset_filter(self, f: _Filter, zs: float, zv: float) -> int:
         self.counters["resets"] += 1
-        self._initialise(zs, zv, True)
+        self._initialise_filter(f, zs, zv, True)
         return HEALTH_RESET
 
     def _nis_push(self, nis: float, dof: int) -> bool:
@@ -531,20 +763,21 @@ class ResistanceEstimator:
         ring.append((nis, dof))
         self._nis_sum += nis
         self._nis_dof += dof
-        if len(ring) > self.config.nis_window:
-            old, odof = ring.pop(0)
+        window = self.config.nis_window
+        if len(ring) > window:
+            old, odof = ring.popleft()
             self._nis_sum -= old
             self._nis_dof -= odof
-        if len(ring) < self.config.nis_window or self._nis_dof <= 0:
+        if len(ring) < window or self._nis_dof <= 0:
             return False
         return self._nis_sum > self._nis_limit[self._nis_dof]
 
     # -- the closed-form unscented step -------------------------------------------------------------
-    def _predict(self, dt: float, u: float, g: float, decoupled: bool) -> None:
-        x = self._x
+    def _predict(self, f: _Filter, dt: float, u: float, g: float, decoupled: bool) -> None:
+        x = f.x
         s, v, r0, r1, r2 = x
-        l00, l10, l20, l30, l40, l11, l21, l31, l41, l22, l32, l42, l33, l43, l44 = self._L
-        p00, p01, p02, p03, p04, p11, p12, p13, p14, p22, p23, p24, p33, p34, p44 = self._P
+        l00, l10, l20, l30, l40, l11, l21, l31, l41, l22, l32, l42, l33, l43, l44 = f.L
+        p00, p01, p02, p03, p04, p11, p12, p13, p14, p22, p23, p24, p33, p34, p44 = f.P
         c = self._c
         c2 = self._c2
         w = u - g
@@ -605,7 +838,7 @@ class ResistanceEstimator:
         m4 = (l40 * o0 + l41 * o1 + l42 * o2 + l43 * o3 + l44 * o4) * ic
         b0 = h * dt
         b1 = dt
-        self._m = (m0, m1, m2, m3, m4)
+        f.m = (m0, m1, m2, m3, m4)
         m0 = m0 + dt * m1  # A m
         # mean
         x[0] = s + dt * v + b0 * abar
@@ -627,7 +860,7 @@ class ResistanceEstimator:
         n13 = p13 + b1 * m3
         n14 = p14 + b1 * m4
         # gain basis without Q (used when update_uses_process_noise is false)
-        self._q_sv = (0.0, 0.0, 0.0)
+        f.q_sv = (0.0, 0.0, 0.0)
         qa = self._qa
         if qa > 0.0:
             qs, qsv, qv = qa * b0 * b0, qa * b0 * b1, qa * b1 * b1
@@ -635,9 +868,9 @@ class ResistanceEstimator:
             n01 += qsv
             n11 += qv
             if not self._use_q_gain:
-                self._q_sv = (qs, qsv, qv)
+                f.q_sv = (qs, qsv, qv)
         qr0, qr1, qr2 = self._qr
-        self._P = (
+        f.P = (
             n00,
             n01,
             n02,
@@ -656,14 +889,14 @@ class ResistanceEstimator:
         )
 
     def _update(
-        self, zs: float, zv: float, rs: float, rv: float, s_measured: bool, dt: float, consider: bool = False
+        self, f: _Filter, zs: float, zv: float, rs: float, rv: float, s_measured: bool, dt: float, consider: bool
     ) -> tuple[float, int]:
         """Linear Kalman update with z = (s, v) or v; ``consider``: r is a consider parameter (Schmidt-Kalman):
         its gain is zero, so r and P_rr stay, and the r-(s, v) covariances get the Joseph-form update."""
-        x = self._x
-        p00, p01, p02, p03, p04, p11, p12, p13, p14, p22, p23, p24, p33, p34, p44 = self._P
+        x = f.x
+        p00, p01, p02, p03, p04, p11, p12, p13, p14, p22, p23, p24, p33, p34, p44 = f.P
         if dt > 0.0:
-            qs, qsv, qv = self._q_sv
+            qs, qsv, qv = f.q_sv
         else:
             qs = qsv = qv = 0.0
         # Pxz columns (s and v) in the gain basis
@@ -694,7 +927,7 @@ class ResistanceEstimator:
             x[2] += k20 * nu0 + k21 * nu1
             x[3] += k30 * nu0 + k31 * nu1
             x[4] += k40 * nu0 + k41 * nu1
-            self._P = (
+            f.P = (
                 p00 - (k00 * a0 + k01 * b0_),
                 p01 - (k00 * a1 + k01 * b1_),
                 p02 - (k00 * a2 + k01 * b2_),
@@ -724,7 +957,7 @@ class ResistanceEstimator:
         x[2] += k2 * nu1
         x[3] += k3 * nu1
         x[4] += k4 * nu1
-        self._P = (
+        f.P = (
             p00 - k0 * b0_,
             p01 - k0 * b1_,
             p02 - k0 * b2_,

@@ -60,6 +60,7 @@ class UkfNode(TrainCalibNode):
             if self._next_config is not None:  # parameters changed: a new filter for the new run
                 cfg, self._next_config = self._next_config, None
                 keep = cfg.carry_over == "keep" and self._run_id is not None
+                self.estimator.flush()  # the old run's samples still waiting for the look-ahead inform r first
                 self.estimator = ResistanceEstimator(
                     self.train, cfg, self.estimator.davis if keep else None, safeguards=self._safeguard_config()
                 )
