@@ -40,6 +40,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from benchlib import print_summary, row, speed_text
 
 from train_calib.occupation.calibrate import CalibrationConfig, calibrate_run
 from train_calib.occupation.compositions import load_train_types
@@ -235,7 +236,33 @@ def timing(args) -> dict:
             end="",
         )
     print()
+    out["summary"] = _timing_summary(traj_ms, batch_ms, sc, ve, par)
+    print_summary(out["summary"])
     return out
+
+
+def _timing_summary(traj_ms: float, batch_ms: float, sc: dict | None, ve: dict | None, par: dict) -> list:
+    rows = [
+        row("one 14.3 km trajectory of the running-time model (median over compositions)", f"{traj_ms:.2f} ms",
+            f"<= {1e3 * PAPER_TRAJECTORY_S:.0f} ms (paper)", traj_ms <= 1e3 * PAPER_TRAJECTORY_S,
+            f"paper {1e3 * PAPER_TRAJECTORY_S:.0f} ms", 1e3 * PAPER_TRAJECTORY_S / traj_ms,
+            speed_text(1e3 * PAPER_TRAJECTORY_S / traj_ms),
+            note=f"48 in one call: {batch_ms / 48:.2f} ms each"),
+    ]  # fmt: skip
+    if ve:
+        ref = f"paper < {PAPER_CALIBRATION_S:.0f} s"
+        note = f"CPU {ve['median_cpu_s']:.2f} s, {ve['model_runs']:.0f} model runs, objective {ve['objective_s']:.2f} s"
+        if sc:
+            note += f"; per-vector engine {sc['median_s']:.2f} s ({sc['median_s'] / ve['median_s']:.1f}x slower)"
+        rows.append(
+            row("one calibration (vectorised engine, 1 process, median over runs)", f"{ve['median_s']:.2f} s",
+                f"< {TARGET_CALIBRATION_S:g} s", ve["median_s"] < TARGET_CALIBRATION_S, ref,
+                PAPER_CALIBRATION_S / ve["median_s"], speed_text(PAPER_CALIBRATION_S / ve["median_s"]),
+                note=note)
+        )  # fmt: skip
+    for name, v in par.items():
+        rows.append(row(name, f"{v['runs_per_minute']:.1f} runs/min", note=f"{v['per_run_s']:.2f} s per run"))
+    return rows
 
 
 def settings(args) -> dict:

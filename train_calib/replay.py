@@ -24,7 +24,9 @@ window_calib_node runs when the bag has ``/train/traction_power`` (``window=None
 
 Nodes run in this process on one executor (the rclpy EventsExecutor when available, else the
 SingleThreadedExecutor), or each in its own process (``processes=True``), watched through
-``/train_calib/progress``.
+``/train_calib/progress``. The EventsExecutor is the default because it is the faster one for this graph:
+3.6-5x the samples per second of the SingleThreadedExecutor at rate 0 (bench/bench_graph.py; the measurements
+and the reason are in :func:`train_calib.nodes.common.make_executor`).
 """
 
 from __future__ import annotations
