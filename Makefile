@@ -70,8 +70,11 @@ setup: $(STAMP_PKG)
 demo: $(STAMP_PKG)
 	$(VENV)/bin/train-calib demo
 
+# Two workers (pytest-xdist), one test file per worker at a time; each worker claims its own ROS domain id.
+# `make test PYTEST_ARGS=-n0` runs serially.
+PYTEST_ARGS ?= -n 2 --dist loadfile
 test: $(STAMP_PKG)
-	$(VPY) -m pytest
+	$(VPY) -m pytest $(PYTEST_ARGS)
 
 bench: $(STAMP_PKG)
 	$(VPY) bench/run_all.py

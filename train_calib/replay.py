@@ -16,8 +16,10 @@ publish their final /diagnostics and the recording is closed.
 
 Nodes downstream of the head hold samples only while they wait for another graph topic (window_calib_node
 joins each measurement with its regime and, on board, gives up after ``max_regime_wait`` samples): the replay
-does not let such a node hold more than ``max_held`` samples while the graph still has messages in flight, so
-a slow node never makes another fall back on its time-out, and the result does not depend on scheduling.
+does not let such a node hold more than ``max_held`` samples while the graph still has messages in flight, and
+sets ``max_regime_wait`` to REPLAY_MAX_REGIME_WAIT, so a slow node never makes another fall back on its time-out
+(also with ``--processes``, where a measurement can run ahead of its regime by up to ``max_lag``), and the result
+does not depend on scheduling.
 
 window_calib_node runs when the bag has ``/train/traction_power`` (``window=None``, the default), or as
 ``window`` True/False forces.
@@ -60,6 +62,10 @@ class ReplayError(TrainCalibError):
 
 class Interrupted(Exception):
     pass
+
+
+REPLAY_MAX_REGIME_WAIT = 100000
+"""window_calib_node's max_regime_wait in a replay (its upper bound): wait for every regime."""
 
 
 @dataclass
@@ -239,6 +245,10 @@ class Replay:
 
         o = self.o
         overrides = {"track_file": str(track_path), "train_file": str(train_path), "use_sim_time": True}
+        # in a replay every regime comes (flow control, end of input): window_calib_node never gives up waiting for
+        # one, whatever the processes' scheduling (with --processes a measurement may run up to max_lag ahead of its
+        # regime, more than the on-board max_regime_wait)
+        overrides["max_regime_wait"] = REPLAY_MAX_REGIME_WAIT
         self.node = rclpy.create_node("train_calib_replay", context=context)
         rec_node = rclpy.create_node(
             "train_calib_recorder", context=context, parameter_overrides=[Parameter("use_sim_time", value=True)]
