@@ -259,7 +259,8 @@ class _Piecewise:
         self.last = len(self.breaks) - 1
 
     def _index(self, s: float) -> int:
-        return min(max(bisect.bisect_right(self.breaks, s) - 1, 0), self.last)
+        i = bisect.bisect_right(self.breaks, s) - 1
+        return 0 if i < 0 else self.last if i > self.last else i
 
     def __call__(self, s: float) -> float:
         return self.values[self._index(s)]
@@ -270,7 +271,14 @@ class _Piecewise:
 
     def mean_over(self, a: float, b: float) -> float:
         if b - a > 1e-9:
-            return (self.integral(b) - self.integral(a)) / (b - a)
+            breaks, values, cumulative, last = self.breaks, self.values, self.cumulative, self.last
+            i = bisect.bisect_right(breaks, b) - 1
+            i = 0 if i < 0 else last if i > last else i
+            j = bisect.bisect_right(breaks, a) - 1
+            j = 0 if j < 0 else last if j > last else j
+            return (cumulative[i] + values[i] * (b - breaks[i]) - (cumulative[j] + values[j] * (a - breaks[j]))) / (
+                b - a
+            )
         return self(b)
 
 
@@ -304,9 +312,15 @@ class _Segments:
         self.x = [float(x) for x in track.east_m]
         self.y = [float(y) for y in track.north_m]
         self.length = self.s[-1]
+        s, x, y = self.s, self.x, self.y
+        # per segment i (vertex i to i + 1): (s0, x0, y0, ds, dx, dy, max(|d|^2, 1e-12)), m and m^2
+        self._seg = []
+        for i in range(len(s) - 1):
+            dx, dy = x[i + 1] - x[i], y[i + 1] - y[i]
+            self._seg.append((s[i], x[i], y[i], s[i + 1] - s[i], dx, dy, max(dx * dx + dy * dy, 1e-12)))
 
     def project(self, e: float, n: float, lo: float, hi: float) -> tuple[float, float]:
-        s, x, y = self.s, self.x, self.y
+        s = self.s
         lo, hi = max(lo, s[0]), min(hi, self.length)
         if hi < lo:  # the window lies beyond an end of the line: its nearest end
             lo = hi = s[0] if hi < s[0] else self.length
@@ -314,14 +328,14 @@ class _Segments:
         first = min(max(bisect.bisect_right(s, lo) - 1, 0), segments - 1)
         stop = min(max(bisect.bisect_left(s, hi), first + 1), segments)
         best_s, best_d = lo, math.inf
-        for i in range(first, stop):
-            x0, y0, ds = x[i], y[i], s[i + 1] - s[i]
-            dx, dy = x[i + 1] - x0, y[i + 1] - y0
-            t = ((e - x0) * dx + (n - y0) * dy) / max(dx * dx + dy * dy, 1e-12)
-            si = s[i] + min(max(t, 0.0), 1.0) * ds
+        hypot = math.hypot
+        for s0, x0, y0, ds, dx, dy, len2 in self._seg[first:stop]:
+            t = ((e - x0) * dx + (n - y0) * dy) / len2
+            t = 0.0 if t < 0.0 else 1.0 if t > 1.0 else t  # = min(max(t, 0), 1)
+            si = s0 + t * ds
             si = min(max(si, lo), hi)
-            f = (si - s[i]) / ds if ds > 0 else 0.0
-            d = math.hypot(x0 + f * dx - e, y0 + f * dy - n)
+            f = (si - s0) / ds if ds > 0 else 0.0
+            d = hypot(x0 + f * dx - e, y0 + f * dy - n)
             if d < best_d:
                 best_s, best_d = si, d
         return best_s, best_d
@@ -337,18 +351,19 @@ class _Enu:
         self.rotation = frame._rotation
         self.origin = geodetic_to_ecef(frame.lat0_deg, frame.lon0_deg)
         self._ecef = geodetic_to_ecef
+        # the same numbers as plain floats (float64 either way; Python floats skip numpy's scalar overhead)
+        self._o = tuple(float(x) for x in self.origin)
+        self._r = tuple(tuple(float(x) for x in row) for row in self.rotation[:2])
 
     def __call__(self, lat: float, lon: float) -> tuple[float, float]:
         lat_r, lon_r = math.radians(lat), math.radians(lon)
         sin_lat, cos_lat = math.sin(lat_r), math.cos(lat_r)
         n = WGS84_A / math.sqrt(1.0 - WGS84_E2 * sin_lat * sin_lat)
-        d = (n * cos_lat * math.cos(lon_r) - self.origin[0], n * cos_lat * math.sin(lon_r) - self.origin[1],
-             n * (1.0 - WGS84_E2) * sin_lat - self.origin[2])  # fmt: skip
-        r = self.rotation
-        return (
-            float(r[0, 0] * d[0] + r[0, 1] * d[1] + r[0, 2] * d[2]),
-            float(r[1, 0] * d[0] + r[1, 1] * d[1] + r[1, 2] * d[2]),
-        )
+        o0, o1, o2 = self._o
+        d0, d1, d2 = (n * cos_lat * math.cos(lon_r) - o0, n * cos_lat * math.sin(lon_r) - o1,
+                      n * (1.0 - WGS84_E2) * sin_lat - o2)  # fmt: skip
+        (r00, r01, r02), (r10, r11, r12) = self._r
+        return r00 * d0 + r01 * d1 + r02 * d2, r10 * d0 + r11 * d1 + r12 * d2
 
 
 # -- input records (duck-typed converters from rclpy or rosbags messages below) -----------------------
@@ -694,8 +709,7 @@ class Ingest:
         return None, late
 
     def _check_speed(self, sample: SpeedSample) -> tuple[str | None, bool]:
-        recent = [sp.stamp_ns for sp in self._speeds]
-        recent += [sp.stamp_ns for sp in self._pending]
+        recent = (sp.stamp_ns for queue in (self._speeds, self._pending) for sp in queue)  # read only when late
         reason, late = self._check_time(SPEED, sample.stamp_ns, recent)
         if reason is not None:
             return reason, late
@@ -992,19 +1006,22 @@ class Ingest:
 
     def _trim(self) -> None:
         """Forget fixes and power samples no pending or future speed sample can pair with."""
-        horizon = self._pending[0].stamp_ns if self._pending else self._latest.get(SPEED)
-        if self._newest_ns is not None:  # a speed stream silent for long must not let them pile up
-            oldest_useful = self._newest_ns - int(self.config.max_sample_age * NS)
+        pending, cfg = self._pending, self.config
+        horizon = pending[0].stamp_ns if pending else self._latest.get(SPEED)
+        newest = self._newest_ns
+        if newest is not None:  # a speed stream silent for long must not let them pile up
+            oldest_useful = newest - int(cfg.max_sample_age * NS)
             horizon = oldest_useful if horizon is None else max(horizon, oldest_useful)
         if horizon is None:
             return
-        keep_from = horizon - int(self.config.pair_tolerance * NS) - NS
-        while len(self._fixes) > 1 and self._fixes[1].t_ns <= keep_from:
-            self._fixes.popleft()
-        while len(self._powers) > 1 and self._powers[1].stamp_ns <= keep_from:
-            self._powers.popleft()
-        while len(self._speeds) > 2 and self._speeds[1].stamp_ns <= keep_from:
-            self._speeds.popleft()
+        keep_from = horizon - int(cfg.pair_tolerance * NS) - NS
+        fixes, powers, speeds = self._fixes, self._powers, self._speeds
+        while len(fixes) > 1 and fixes[1].t_ns <= keep_from:
+            fixes.popleft()
+        while len(powers) > 1 and powers[1].stamp_ns <= keep_from:
+            powers.popleft()
+        while len(speeds) > 2 and speeds[1].stamp_ns <= keep_from:
+            speeds.popleft()
 
     def _nearest_fix(self, t_ns: int) -> _Fix | None:
         best, best_dt = None, self.config.pair_tolerance * NS

@@ -143,7 +143,30 @@ def test_a_bad_value_at_run_time_is_refused_with_the_reason_and_a_good_one_is_ap
             node.destroy_node()
 
 
-def test_node_executable_refuses_a_bad_value_in_one_line_and_stops_cleanly_on_sigint():
+def _wait_for_diagnostics_of(context, node_name: str, timeout_s: float = 60.0) -> bool:
+    """True once `node_name` has published on /diagnostics (it is up and spinning)."""
+    import rclpy
+    from diagnostic_msgs.msg import DiagnosticArray
+    from rclpy.executors import SingleThreadedExecutor
+
+    seen = []
+    node = rclpy.create_node("diagnostics_listener", context=context)
+    node.create_subscription(
+        DiagnosticArray, "/diagnostics", lambda m: seen.extend(s.name for s in m.status if node_name in s.name), 10
+    )
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(node)
+    deadline = time.monotonic() + timeout_s
+    try:
+        while not seen and time.monotonic() < deadline:
+            executor.spin_once(timeout_sec=0.1)
+    finally:
+        executor.shutdown()
+        node.destroy_node()
+    return bool(seen)
+
+
+def test_node_executable_refuses_a_bad_value_in_one_line_and_stops_cleanly_on_sigint(rclpy_context):
     bad = subprocess.run(
         [sys.executable, "-m", "train_calib.nodes.regime_node", "--ros-args", "-p", "effort_tolerance:=-1.0"],
         capture_output=True,
@@ -161,7 +184,8 @@ def test_node_executable_refuses_a_bad_value_in_one_line_and_stops_cleanly_on_si
         text=True,
     )
     try:
-        time.sleep(3.0)
+        # SIGINT once the node spins (a fixed sleep raced with the imports on a loaded machine)
+        assert _wait_for_diagnostics_of(rclpy_context, "regime_node"), "regime_node published no /diagnostics"
         assert proc.poll() is None, proc.stdout.read()
         proc.send_signal(2)
         out, _ = proc.communicate(timeout=15)

@@ -27,6 +27,7 @@ effort over the step) and acceleration. Steps with v_mid below ``standstill_spee
 
 from __future__ import annotations
 
+import bisect
 import math
 from collections import deque
 from dataclasses import dataclass, field
@@ -124,7 +125,7 @@ class _Change:
     with too few samples: the middle of the step.
     """
 
-    __slots__ = ("_time", "closed", "kind", "lo", "pts", "s_stop", "standstill", "t_first", "t_prev", "until")
+    __slots__ = ("_memo", "_time", "closed", "kind", "lo", "pts", "s_stop", "standstill", "t_first", "t_prev", "until")
 
     def __init__(self, kind: str, t_prev: float, t_first: float, pts: list, cfg: FeatureConfig) -> None:
         self.kind, self.t_prev, self.t_first = kind, t_prev, t_first
@@ -135,6 +136,7 @@ class _Change:
         self.s_stop = _NAN
         self.standstill = cfg.standstill_speed
         self._time: float | None = None
+        self._memo: tuple[int, bool, float] | None = None  # (len(pts), refine, time): pts only grow by appending
 
     def add(self, t: float, s: float, v: float, a: float) -> None:
         if t <= self.until:
@@ -146,14 +148,19 @@ class _Change:
         """Time of the change, s (cached once no more samples can change it)."""
         if self._time is not None:
             return self._time
-        mid = 0.5 * (self.t_prev + self.t_first)
-        if not refine:
-            out = mid
-        elif self.kind == "stop":
-            out = _stop_time(self.pts, self.t_prev, self.t_first, self.standstill)
+        memo = self._memo
+        if memo is not None and memo[0] == len(self.pts) and memo[1] == refine:
+            out = memo[2]  # the same samples as the last call: the same time
         else:
-            out = _break_time(self.pts, self.lo, self.t_first)
-            out = mid if out is None else out
+            mid = 0.5 * (self.t_prev + self.t_first)
+            if not refine:
+                out = mid
+            elif self.kind == "stop":
+                out = _stop_time(self.pts, self.t_prev, self.t_first, self.standstill)
+            else:
+                out = _break_time(self.pts, self.lo, self.t_first)
+                out = mid if out is None else out
+            self._memo = (len(self.pts), refine, out)
         if self.closed:
             self._time = out
         return out
@@ -259,6 +266,25 @@ class _Phase:
         return max(t1 - t0, 0.0), s1 - s0
 
 
+def _flat_break(t: np.ndarray, v: np.ndarray, min_tail: float) -> int | None:
+    """Index k (2 <= k < n - 2, at least ``min_tail`` s before the end) of the continuous line v = a + b min(t - t_k, 0)
+    with the least residual sum of squares (the first of equal ones); None when there is no such k. Closed-form
+    two-parameter least squares, every k at once (t in s, v in m/s)."""
+    n = t.size
+    ks = np.arange(2, n - 2)
+    ks = ks[t[-1] - t[ks] >= min_tail]
+    if ks.size == 0:
+        return None
+    x = np.minimum(t[None, :] - t[ks, None], 0.0)
+    xc = x - x.mean(axis=1, keepdims=True)
+    vc = v - v.mean()
+    sxx = (xc * xc).sum(axis=1)
+    slope = (xc @ vc) / np.where(sxx > 0.0, sxx, 1.0)
+    resid = xc * slope[:, None] - vc
+    rss = (resid * resid).sum(axis=1)
+    return int(ks[int(np.argmin(rss))])
+
+
 def _hold_tail(tail: deque, w: float, min_tail: float) -> float | None:
     """Start of a speed hold that ends a labelled coasting phase (a low-speed hold has its effort r + g inside the
     coasting band and may be labelled coasting), or None.
@@ -273,19 +299,9 @@ def _hold_tail(tail: deque, w: float, min_tail: float) -> float | None:
     arr = np.asarray(tail, dtype=float)
     t = arr[:, 0] - arr[-1, 0]
     v = arr[:, 2]
-    best = None
-    for k in range(2, t.size - 2):
-        if t[-1] - t[k] < min_tail:
-            break
-        x = np.minimum(t - t[k], 0.0)
-        a = np.vstack([np.ones_like(x), x]).T
-        coef = np.linalg.lstsq(a, v, rcond=None)[0]
-        rss = float(((a @ coef - v) ** 2).sum())
-        if best is None or rss < best[0]:
-            best = (rss, k)
-    if best is None:
+    k = _flat_break(t, v, min_tail)
+    if k is None:
         return None
-    k = best[1]
     tt, vv = t[k:], v[k:]
     sxx = float(((tt - tt.mean()) ** 2).sum())
     if not sxx > 0.0:
@@ -309,12 +325,33 @@ class _FinalPhases:
     brake). Start and end are the located changes (``_Change``), the end of the final brake the stop.
     """
 
-    __slots__ = ("_coasts", "_hist", "_last", "_open", "_span", "_u", "cfg", "final", "refine")
+    __slots__ = (
+        "_coasts",
+        "_hist",
+        "_hold_window",
+        "_last",
+        "_merge_gap",
+        "_min_brake",
+        "_min_coast",
+        "_open",
+        "_span",
+        "_standstill",
+        "_u",
+        "cfg",
+        "final",
+        "refine",
+    )
 
     def __init__(self, cfg: FeatureConfig) -> None:
         self.cfg = cfg
         self.refine = cfg.boundary_refinement
         self._span = cfg.boundary_window + cfg.boundary_search
+        # per-step constants (s, m/s)
+        self._standstill = cfg.standstill_speed
+        self._merge_gap = cfg.phase_merge_gap + 1e-9
+        self._hold_window = cfg.hold_check_window
+        self._min_coast = cfg.final_coast_min_duration - 1e-9
+        self._min_brake = cfg.final_brake_min_duration - 1e-9
         self._hist: deque[tuple[float, ...]] = deque()  # (t, s, v, acceleration) of the recent moving samples
         self._open: list[_Change] = []  # changes still collecting the samples after them
         self._last: dict[int, _Phase | None] = {COASTING: None, BRAKING: None}
@@ -337,53 +374,59 @@ class _FinalPhases:
     ) -> None:
         """One step (t_prev, t] labelled r (UNKNOWN when standing) after one labelled r_prev; accel: its published
         acceleration; w = r + g (effort - acceleration; NaN where the effort is a known zero)."""
-        cfg = self.cfg
         if dt > 0.0 and math.isfinite(accel):
             self._u += accel * dt
-        standing = not v >= cfg.standstill_speed
-        brake = self._last[BRAKING]
-        if brake is not None and brake.end is None and standing and BRAKING in (r, r_prev):
+        moving = v >= self._standstill
+        last = self._last
+        brake = last[BRAKING]
+        if brake is not None and brake.end is None and not moving and (r == BRAKING or r_prev == BRAKING):
             # the train stopped within this step (still labelled braking) or the last: the end of the braking
             brake.end = self._change("stop", t_prev, t, s, brake)
         elif r != r_prev and (r in _FINAL or r_prev in _FINAL):
             ch = self._change("change", t_prev, t, s, None)
-            ph = self._last.get(r_prev)
+            ph = last.get(r_prev)
             if ph is not None and ph.end is None:
                 ph.end = ch
             if r in _FINAL:
-                ph = self._last[r]
+                ph = last[r]
                 gap = t_prev - ph.last_t if ph is not None else math.inf
-                if gap <= cfg.phase_merge_gap + 1e-9 and not self._braked_since(ph, r):
+                if gap <= self._merge_gap and not self._braked_since(ph, r):
                     ph.end = None  # resumed after a short interruption
                 else:
-                    self._last[r] = _Phase(ch, t_prev, s_prev)
-        elif r in _FINAL and self._last[r] is None:
-            self._last[r] = _Phase(None, t_prev, s_prev)  # the first step of the run
-        if standing and r == BRAKING:
+                    last[r] = _Phase(ch, t_prev, s_prev)
+        elif r in _FINAL and last[r] is None:
+            last[r] = _Phase(None, t_prev, s_prev)  # the first step of the run
+        if not moving and r == BRAKING:
             r = UNKNOWN  # the step the train stopped in: its braking ended at the stop located above
         if r in _FINAL:
-            ph = self._last[r]
+            ph = last[r]
             ph.last_t, ph.last_s = t, s
             if dt > 0.0:
                 ph.labelled += dt
             if r == COASTING:
-                ph.tail.append((t, s, self._u))
-                while ph.tail[0][0] < t - cfg.hold_check_window:
-                    ph.tail.popleft()
+                tail = ph.tail
+                tail.append((t, s, self._u))
+                t_old = t - self._hold_window
+                while tail[0][0] < t_old:
+                    tail.popleft()
                 if math.isfinite(w):
                     ph.w_last = w
-            minimum = cfg.final_coast_min_duration if r == COASTING else cfg.final_brake_min_duration
-            if ph.labelled >= minimum - 1e-9 and self.final[r] is not ph:
+                minimum = self._min_coast
+            else:
+                minimum = self._min_brake
+            if ph.labelled >= minimum and self.final[r] is not ph:
                 self.final[r] = ph
                 if r == COASTING:
                     self._coasts = [*self._coasts[-2:], ph]
-        if v >= cfg.standstill_speed:
-            self._hist.append((t, s, v, accel))
-            for ch in self._open:
-                ch.add(t, s, v, accel)
-            self._open = [ch for ch in self._open if not ch.closed]
         hist = self._hist
-        while hist and hist[0][0] < t - self._span - 5.0 * max(dt, 0.0):
+        if moving:
+            hist.append((t, s, v, accel))
+            if self._open:
+                for ch in self._open:
+                    ch.add(t, s, v, accel)
+                self._open = [ch for ch in self._open if not ch.closed]
+        t_old = t - self._span - 5.0 * max(dt, 0.0)
+        while hist and hist[0][0] < t_old:
             hist.popleft()
 
     def _change(self, kind: str, t_prev: float, t: float, s: float, brake: _Phase | None) -> _Change:
@@ -549,7 +592,7 @@ class FeatureAccumulator:
         return changed
 
     def _step_index(self, v: float) -> int:
-        return int(np.searchsorted(self._edges, v, side="right")) - 1
+        return bisect.bisect_right(self._edges_list, v) - 1  # = np.searchsorted(edges, v, side='right') - 1
 
     def _close_cruise(self, t_end: float) -> None:
         if t_end - self._cruise_start >= self.config.cruise_min_duration and self._cruise_v:
