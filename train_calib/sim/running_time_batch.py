@@ -185,6 +185,22 @@ class _Lanes:
     iterations: int
 
 
+
+def _cap_w_t(cap: dict, rows: np.ndarray, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(w, T) of the piecewise-linear cap (in w = v^2/2) at positions s of members rows: w and the time from the
+    start (closed form on each linear piece)."""
+    cs, cw, ct, key = cap["s"], cap["w"], cap["t"], cap["key"]
+    k = cs.shape[1]
+    j = np.searchsorted(key, rows * _KEY + s, side="right") - 1
+    j = np.clip(j - rows * k, 0, k - 2) + rows * k
+    sa, sb = cs.ravel()[j], cs.ravel()[j + 1]
+    wa, wb = cw.ravel()[j], cw.ravel()[j + 1]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        frac = np.where(sb > sa, (s - sa) / (sb - sa), 0.0)
+        w = np.maximum(wa + (wb - wa) * frac, 0.0)
+        dt = np.where(s > sa, 2.0 * (s - sa) / (np.sqrt(2.0 * wa) + np.sqrt(2.0 * w)), 0.0)
+    return w, ct.ravel()[j] + dt
+
 class ProfileBatch:
     """Minimum-time profiles of n parameter vectors between two stops (see the module docstring).
 
@@ -213,19 +229,7 @@ class ProfileBatch:
     # -- cap ----------------------------------------------------------------------------------
     def _cap_eval(self, rows: np.ndarray, s: np.ndarray):
         """(w, T) of the cap at positions s of members rows (same shapes): w and the time from the start."""
-        cs, cw, ct, key = self._cap["s"], self._cap["w"], self._cap["t"], self._cap["key"]
-        k = cs.shape[1]
-        j = np.searchsorted(key, rows * _KEY + s, side="right") - 1
-        j = np.clip(j - rows * k, 0, k - 2) + rows * k
-        sa, sb = cs.ravel()[j], cs.ravel()[j + 1]
-        wa, wb = cw.ravel()[j], cw.ravel()[j + 1]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            frac = np.where(sb > sa, (s - sa) / (sb - sa), 0.0)
-        w = np.maximum(wa + (wb - wa) * frac, 0.0)
-        va, v = np.sqrt(2.0 * wa), np.sqrt(2.0 * w)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            dt = np.where(s > sa, 2.0 * (s - sa) / (va + v), 0.0)
-        return w, ct.ravel()[j] + dt
+        return _cap_w_t(self._cap, rows, s)
 
     # -- lanes ---------------------------------------------------------------------------------
     def _lane_eval(self, lane: np.ndarray, s: np.ndarray):
@@ -871,19 +875,5 @@ def _lane_grid(n: int, lanes: _Lanes, cap: dict) -> dict:
         r, c = np.nonzero(active)
         ln = lane[r, c]
         # (cap time from x to y) replaced by the lane's time
-        key, cs, ct, cw = cap["key"], cap["s"], cap["t"], cap["w"]
-        k = cs.shape[1]
-
-        def tcap(rows, s):
-            j = np.searchsorted(key, rows * _KEY + s, side="right") - 1
-            j = np.clip(j - rows * k, 0, k - 2) + rows * k
-            sa, sb = cs.ravel()[j], cs.ravel()[j + 1]
-            wa, wb = cw.ravel()[j], cw.ravel()[j + 1]
-            with np.errstate(divide="ignore", invalid="ignore"):
-                frac = np.where(sb > sa, (s - sa) / (sb - sa), 0.0)
-                wv = np.maximum(wa + (wb - wa) * frac, 0.0)
-                dt = np.where(s > sa, 2.0 * (s - sa) / (np.sqrt(2.0 * wa) + np.sqrt(2.0 * wv)), 0.0)
-            return ct.ravel()[j] + dt
-
-        d[r, c] = lanes.t_end[ln] - (tcap(r, lanes.y[ln]) - tcap(r, lanes.x0[ln]))
+        d[r, c] = lanes.t_end[ln] - (_cap_w_t(cap, r, lanes.y[ln])[1] - _cap_w_t(cap, r, lanes.x0[ln])[1])
     return {"lane": lane, "active": active, "x": x, "y": y, "d": d}
