@@ -19,8 +19,6 @@ import bisect
 import math
 from collections import deque
 
-import numpy as np
-
 NS = 1_000_000_000
 
 
@@ -99,40 +97,56 @@ class DelayEstimator:
         self.time_constant_s = float(time_constant_s)
         self.sigma_m = float(sigma_m)
         self.outliers = 0
-        self._prior = np.diag([0.0 if math.isinf(p) else self.sigma_m**2 / p**2 for p in self.PRIOR_STD])
+        self._prior = tuple(0.0 if math.isinf(p) else self.sigma_m**2 / p**2 for p in self.PRIOR_STD)
         self.reset()
 
+    # The normal equations are 3x3: kept as plain floats (a numpy call per fix cost more than the algebra).
+    # _a = (a00, a01, a02, a11, a12, a22) of the symmetric sum of x x^T; _inverse the same layout.
+
     def reset(self) -> None:
-        self._a = np.zeros((3, 3))
-        self._b = np.zeros(3)
+        self._a = [0.0] * 6
+        self._b = [0.0, 0.0, 0.0]
         self._yy = 0.0
         self._w = 0.0
         self._t_ns: int | None = None
         self._d0: float | None = None
-        self._beta: np.ndarray | None = None
-        self._inverse: np.ndarray | None = None
+        self._beta: tuple[float, float, float] | None = None
+        self._inverse: tuple[float, ...] | None = None
         self._sigma2 = self.sigma_m**2
 
     def add(self, t_ns: int, s_fix: float, d: float, v: float) -> None:
         if self._d0 is None:
             self._d0 = d
-        x = np.array([1.0, v, (d - self._d0) * 1e-3])
+        x2 = (d - self._d0) * 1e-3  # x = (1, v, x2)
         y = s_fix - d
-        if self._beta is not None and self._inverse is not None and self._w >= self.MIN_WEIGHT:
-            residual = y - float(x @ self._beta)
-            spread = self._sigma2 * (1.0 + float(x @ self._inverse @ x))
-            if residual * residual > 25.0 * spread:
+        beta, inv = self._beta, self._inverse
+        if beta is not None and inv is not None and self._w >= self.MIN_WEIGHT:
+            residual = y - (beta[0] + beta[1] * v + beta[2] * x2)
+            i00, i01, i02, i11, i12, i22 = inv
+            quad = i00 + i11 * v * v + i22 * x2 * x2 + 2.0 * (i01 * v + i02 * x2 + i12 * v * x2)
+            if residual * residual > 25.0 * self._sigma2 * (1.0 + quad):
                 self.outliers += 1
                 return
+        a, b = self._a, self._b
         if self._t_ns is not None:
             decay = math.exp(-max(t_ns - self._t_ns, 0) / NS / self.time_constant_s)
-            self._a *= decay
-            self._b *= decay
+            for k in range(6):
+                a[k] *= decay
+            b[0] *= decay
+            b[1] *= decay
+            b[2] *= decay
             self._yy *= decay
             self._w *= decay
         self._t_ns = t_ns
-        self._a += np.outer(x, x)
-        self._b += x * y
+        a[0] += 1.0
+        a[1] += v
+        a[2] += x2
+        a[3] += v * v
+        a[4] += v * x2
+        a[5] += x2 * x2
+        b[0] += y
+        b[1] += v * y
+        b[2] += x2 * y
         self._yy += y * y
         self._w += 1.0
         self._solve()
@@ -140,22 +154,39 @@ class DelayEstimator:
     def _solve(self) -> None:
         if self._w < 2.0:
             return
-        try:
-            inverse = np.linalg.inv(self._a + self._prior)
-        except np.linalg.LinAlgError:
+        p0, p1, p2 = self._prior
+        a00, a01, a02, a11, a12, a22 = self._a
+        a00, a11, a22 = a00 + p0, a11 + p1, a22 + p2
+        c00 = a11 * a22 - a12 * a12  # cofactors of the symmetric matrix
+        c01 = a02 * a12 - a01 * a22
+        c02 = a01 * a12 - a02 * a11
+        det = a00 * c00 + a01 * c01 + a02 * c02
+        if not (math.isfinite(det) and abs(det) > 1e-300):
             return
-        beta = inverse @ self._b
-        self._beta, self._inverse = beta, inverse
-        self._sigma2 = max((self._yy - float(beta @ self._b)) / max(self._w - 3.0, 1.0), 0.25)
+        f = 1.0 / det
+        inv = (
+            c00 * f,
+            c01 * f,
+            c02 * f,
+            (a00 * a22 - a02 * a02) * f,
+            (a01 * a02 - a00 * a12) * f,
+            (a00 * a11 - a01 * a01) * f,
+        )
+        i00, i01, i02, i11, i12, i22 = inv
+        b0, b1, b2 = self._b
+        beta = (i00 * b0 + i01 * b1 + i02 * b2, i01 * b0 + i11 * b1 + i12 * b2, i02 * b0 + i12 * b1 + i22 * b2)
+        self._beta, self._inverse = beta, inv
+        fit = beta[0] * b0 + beta[1] * b1 + beta[2] * b2
+        self._sigma2 = max((self._yy - fit) / max(self._w - 3.0, 1.0), 0.25)
 
     def estimate(self) -> tuple[float, float] | None:
         """(delay, std) in s: the GNSS stamps are this much later than the measurement time."""
         if self._beta is None or self._inverse is None or self._w < self.MIN_WEIGHT:
             return None
-        var = float(self._inverse[1, 1]) * self._sigma2
+        var = self._inverse[3] * self._sigma2
         if not (math.isfinite(var) and var > 0.0):
             return None
-        return -float(self._beta[1]), math.sqrt(var)
+        return -self._beta[1], math.sqrt(var)
 
 
 FORWARD = 1
