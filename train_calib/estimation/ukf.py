@@ -490,15 +490,9 @@ class ResistanceEstimator:
             if x[1] < 0.0:  # r is the resistance filter's: only the speed bound here
                 x[1] = 0.0
         else:
-            if (x[1] < 0.0 or x[2] < 0.0 or x[3] < 0.0 or x[4] < 0.0) and project_nonnegative(
-                x, h.P, _NONNEG, cfg.nonnegative, clip_only=_CLIP_ONLY
-            ):
-                counters["projections"] += 1
-            flag = self._set_cov(h, h.P)
-            if flag == HEALTH_RESET:
-                health = self._hard_reset(zs, zv)
-            elif flag == HEALTH_REPAIRED:
-                health = HEALTH_REPAIRED
+            flag = self._project_and_check(h, zs, zv)
+            if flag != HEALTH_OK:
+                health = flag
         nis_reset = False
         if self._nis_push(nis, dof):
             self._degraded_steps += 1
@@ -530,13 +524,13 @@ class ResistanceEstimator:
                     s_measured,
                     rs,
                     rv,
-                    provisional,  # coasting eligible and the window up to the previous sample passed
+                    provisional,  # coast_eligible: coasting eligible and the window up to the previous sample passed
                     power_u,
                     power_kind,
                     self._relocked,
                     nis_reset,
                     counters["updates"],
-                    provisional and known,
+                    provisional and known,  # output_used_coast: the output filter took u = 0 as known here
                 )
             )
             health = worse(health, worse(self._advance(t), self._sync()))
@@ -589,8 +583,8 @@ class ResistanceEstimator:
 
     def _resistance_step(self, item: tuple, confirmed: bool) -> int:
         """One step of the resistance filter (the same UKF step as the output filter's, on the decided effort)."""
-        (_, _, dt, zs, zv, zv_prev, g_prev, g, s_measured, rs, rv, coast, power_u, kind, relock, nis_reset, arrival,
-         provisional) = item  # fmt: skip
+        (_, _, dt, zs, zv, zv_prev, g_prev, g, s_measured, rs, rv, coast_eligible, power_u, kind, relock, nis_reset,
+         arrival, output_used_coast) = item  # fmt: skip
         f = self._rf
         counters = self.counters
         known = decoupled = False
@@ -601,10 +595,10 @@ class ResistanceEstimator:
             v_ref = x[1] + 0.5 * dz if self._midpoint else x[1]
             u = dz / dt + x[2] + (x[3] + x[4] * v_ref) * v_ref + g_prev
             known_u = power_u
-            if known_u is None and coast:
+            if known_u is None and coast_eligible:
                 if confirmed:
                     known_u, kind = 0.0, "known_effort_coast"
-                elif provisional:
+                elif output_used_coast:
                     counters["coast_unconfirmed"] += 1
             if known_u is not None:
                 if self._known_predict(f, dt, known_u, g_prev, zv, rv):
@@ -622,17 +616,10 @@ class ResistanceEstimator:
             p[0], p[1], p[2], p[3], p[4] = rs, 0.0, 0.0, 0.0, 0.0
             f.P = tuple(p)
         nis, _ = self._update(f, zs, zv, rs, rv, s_measured, dt, decoupled)
-        x = f.x
-        if not math.isfinite(sum(x) + sum(f.P) + nis):
+        if not math.isfinite(sum(f.x) + sum(f.P) + nis):
             health = self._hard_reset_filter(f, zs, zv)
         else:
-            if (x[1] < 0.0 or x[2] < 0.0 or x[3] < 0.0 or x[4] < 0.0) and project_nonnegative(
-                x, f.P, _NONNEG, self.config.nonnegative, clip_only=_CLIP_ONLY
-            ):
-                counters["projections"] += 1
-            health = self._set_cov(f, f.P)
-            if health == HEALTH_RESET:
-                health = self._hard_reset_filter(f, zs, zv)
+            health = self._project_and_check(f, zs, zv)
         if nis_reset:  # the output filter restarted s and v here (NIS rule)
             self._restart_speed(f, zs, zv)
         if self._trace is not None:
@@ -746,6 +733,17 @@ class ResistanceEstimator:
         self._nis_dof = 0
         self._degraded_steps = 0
         return HEALTH_RESET
+
+    def _project_and_check(self, f: _Filter, zs: float, zv: float) -> int:
+        """After an update with a finite result: r (and v) projected onto >= 0, P stored and checked (repaired when
+        not positive definite, f restarted when beyond repair). Returns HEALTH_OK, HEALTH_REPAIRED or HEALTH_RESET."""
+        x = f.x
+        if (x[1] < 0.0 or x[2] < 0.0 or x[3] < 0.0 or x[4] < 0.0) and project_nonnegative(
+            x, f.P, _NONNEG, self.config.nonnegative, clip_only=_CLIP_ONLY
+        ):
+            self.counters["projections"] += 1
+        flag = self._set_cov(f, f.P)
+        return self._hard_reset_filter(f, zs, zv) if flag == HEALTH_RESET else flag
 
     def _hard_reset(self, zs: float, zv: float) -> int:
         """Invalid state or covariance of the output filter: restart s and v at the measurement; r and its
