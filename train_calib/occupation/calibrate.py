@@ -121,7 +121,8 @@ class _Objective:
 class _BatchObjective(_Objective):
     """The objective of a whole population: x of shape (6, S) -> (S,) (differential_evolution(vectorized=True))."""
 
-    def params(self, x: np.ndarray) -> dict:
+    def population_params(self, x: np.ndarray) -> dict:
+        """The parameter mapping of a population: each decision parameter an array of shape (S,)."""
         p: dict = dict(self.fixed)
         p.update(zip(DECISION_NAMES, np.asarray(x, dtype=float)))
         return p
@@ -129,7 +130,7 @@ class _BatchObjective(_Objective):
     def __call__(self, x: np.ndarray):
         x = np.asarray(x, dtype=float)
         self.runs += x.size // len(DECISION_NAMES)
-        values = objective_batch(self.obs, self.model, self.params(x.reshape(len(DECISION_NAMES), -1)))
+        values = objective_batch(self.obs, self.model, self.population_params(x.reshape(len(DECISION_NAMES), -1)))
         values = np.where(np.isfinite(values), values, PENALTY_S)
         return values if x.ndim == 2 else float(values[0])
 
@@ -195,7 +196,7 @@ def calibrate_run(
         callback=stalled,
     )
     elapsed = time.perf_counter() - t0
-    best = _Objective.params(fun, res.x)
+    best = fun.params(res.x)
     ev = evaluate(obs, _Member(model) if vectorized else model, best)
     return CalibrationResult(
         run_id=obs.run_id,
