@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from .bagio import iter_bag, stamp_ns
+from .physics import KMH, davis
 from .regime_codes import REGIME_NAMES, regime_name
 from .train import TrainSpec
 from .window import GOF_KINDS, WindowFit, summarize_by_regime
@@ -191,14 +192,14 @@ def window_summary(
             entry[f"{c}_vs_manufacturer"] = (getattr(f, c) - ref) / ref if ref else None
     speeds = {}
     for kmh in REFERENCE_SPEEDS_KMH:
-        v = kmh / 3.6
-        value = f.r0 + f.r1 * v + f.r2 * v * v
+        v = kmh * KMH
+        value = float(davis(v, f.r0, f.r1, f.r2))
         row: dict[str, Any] = {"value": value}
         if train is not None:
-            ref = train.davis.r0 + train.davis.r1 * v + train.davis.r2 * v * v
+            ref = float(davis(v, *train.davis.as_tuple()))
             row |= {"manufacturer": ref, "vs_manufacturer": (value - ref) / ref}
         if truth is not None and all(c in truth for c in COEFFS):
-            true = truth["r0"] + truth["r1"] * v + truth["r2"] * v * v
+            true = float(davis(v, *(truth[c] for c in COEFFS)))
             row |= {"truth": true, "vs_truth": (value - true) / true}
         speeds[f"{kmh:g}"] = row
     entry["resistance_at_kmh"] = speeds
