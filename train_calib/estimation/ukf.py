@@ -28,8 +28,9 @@ was coasting (u = 0 known) is decided only when the speeds up to ``coast_confirm
 (a traction ramp that starts inside the step is invisible in the past samples). The *resistance filter*
 therefore runs that far behind the latest measurement, on the steps whose decision is final; it is the
 filter that learns r, and the one the filterpy test and the smoother use (``resistance_run``). An *output
-filter* at the latest measurement brings s and v up to date: the same UKF step with r as a consider
-parameter fixed at the resistance filter's latest estimate, the effort decided at once from past samples.
+filter* at the latest measurement brings s and v up to date: the unscented step of (s, v) with r a consider
+parameter fixed at the resistance filter's latest estimate (its uncertainty enters on known-effort steps as
+acceleration noise J P_rr J^T, first order: a is linear in r), the effort decided at once from past samples.
 The published estimate is the output filter's s, v and the resistance filter's r (covariance block
 diagonal); both are causal. Without look-ahead the two are one filter.
 """
@@ -345,10 +346,34 @@ class ResistanceEstimator:
         return (hp[0], hp[1], 0.0, 0.0, 0.0, hp[5], 0.0, 0.0, 0.0, mp[9], mp[10], mp[11], mp[12], mp[13], mp[14])
 
     def _sync(self) -> int:
-        """The output filter takes the resistance filter's r and r covariance (no cross-covariance)."""
-        hx, mx = self._h.x, self._rf.x
+        """The output filter takes the resistance filter's r and r covariance (no cross-covariance). P is block
+        diagonal, so its Cholesky factor is the (s, v) block's and the r block's, each in closed form (equal to
+        the 5x5 factorisation, whose cross terms are exact zeros); the general path when either is not positive
+        definite."""
+        h = self._h
+        hx, mx = h.x, self._rf.x
         hx[2], hx[3], hx[4] = mx[2], mx[3], mx[4]
-        return self._set_cov(self._h, self._published_cov())
+        p = self._published_cov()
+        p00, p01, p11 = p[0], p[1], p[5]
+        p22, p23, p24, p33, p34, p44 = p[9], p[10], p[11], p[12], p[13], p[14]
+        if p00 > 0.0 and p22 > 0.0:
+            l00 = math.sqrt(p00)
+            l10 = p01 / l00
+            d1 = p11 - l10 * l10
+            l22 = math.sqrt(p22)
+            l32 = p23 / l22
+            l42 = p24 / l22
+            d3 = p33 - l32 * l32
+            if d1 > 0.0 and d3 > 0.0:
+                l11 = math.sqrt(d1)
+                l33 = math.sqrt(d3)
+                l43 = (p34 - l42 * l32) / l33
+                d4 = p44 - l42 * l42 - l43 * l43
+                if d4 > 0.0:
+                    h.P = p
+                    h.L = (l00, l10, 0.0, 0.0, 0.0, l11, 0.0, 0.0, 0.0, l22, l32, l42, l33, l43, math.sqrt(d4))
+                    return HEALTH_OK
+        return self._set_cov(h, p)
 
     def _process(
         self,
@@ -455,7 +480,7 @@ class ResistanceEstimator:
                 known_u, kind = 0.0, "known_effort_coast"
                 provisional = True
             if known_u is not None:
-                if self._known_predict(h, dt, known_u, g_prev, zv, rv):
+                if self._known_predict(h, dt, known_u, g_prev, zv, rv, split):
                     known = True
                     u = effort = known_u
                     if not split:
@@ -464,7 +489,10 @@ class ResistanceEstimator:
                     counters["known_effort_rejected"] += 1
             decoupled = self._decouple and not known
             if not known:
-                self._predict(h, dt, u, g_prev, decoupled)
+                if split:
+                    self._predict_output(h, dt, u, g_prev, not self._decouple)
+                else:
+                    self._predict(h, dt, u, g_prev, decoupled)
             self._last_effort, self._last_accel, self._last_input = effort, a_obs, u
         else:
             counters["nonpositive_dt"] += 1
@@ -478,7 +506,10 @@ class ResistanceEstimator:
         self._relocked = False
         if s_measured:
             s_measured, health, gated_nis = self._gate_position(stamp_ns, zs, rs, dt, health)
-        nis, dof = self._update(h, zs, zv, rs, rv, s_measured, dt, decoupled or split)
+        if split:
+            nis, dof = self._update_output(h, zs, zv, rs, rv, s_measured, dt)
+        else:
+            nis, dof = self._update(h, zs, zv, rs, rv, s_measured, dt, decoupled)
         if gated_nis:  # a gated position is an inconsistent innovation: it counts in the NIS window
             nis, dof = nis + gated_nis, dof + 1
         # ---- safeguards -------------------------------------------------------------------------------
@@ -626,10 +657,16 @@ class ResistanceEstimator:
             self._trace.append((arrival, tuple(f.x), f.P, u, dt, g, decoupled, known, health))
         return health
 
-    def _known_predict(self, f: _Filter, dt: float, known_u: float, g: float, zv: float, rv: float) -> bool:
-        """Predict f with the known effort; False (f unchanged) when the speed innovation fails the gate."""
+    def _known_predict(
+        self, f: _Filter, dt: float, known_u: float, g: float, zv: float, rv: float, output: bool = False
+    ) -> bool:
+        """Predict f with the known effort (``output``: the output filter's (s, v) step); False (f unchanged) when
+        the speed innovation fails the gate."""
         saved = (list(f.x), f.P, f.L, f.m, f.q_sv)
-        self._predict(f, dt, known_u, g, False)
+        if output:
+            self._predict_output(f, dt, known_u, g, True)
+        else:
+            self._predict(f, dt, known_u, g, False)
         nu = zv - f.x[1]
         if nu * nu <= self._gate * (f.P[5] + rv):
             return True
@@ -885,6 +922,121 @@ class ResistanceEstimator:
             p34,
             p44 + qr2 * dt,
         )
+
+    def _predict_output(self, f: _Filter, dt: float, u: float, g: float, with_r: bool) -> None:
+        """The output filter's step (look-ahead): the unscented step of (s, v) with r at its mean (f's P is block
+        diagonal after ``_sync``, so the v-directions of the sigma points carry no r), and with ``with_r`` (known
+        effort) r's uncertainty as acceleration noise J P_rr J^T, J = -da/dr at the mean (a is linear in r; with the
+        midpoint rule through the mid-step speed too). Only the (s, v) block of P changes: r is a consider parameter
+        whose cross-covariance ``_sync`` drops."""
+        x = f.x
+        s, v, r0, r1, r2 = x
+        l00, l10, l11 = f.L[0], f.L[1], f.L[5]
+        P = f.P
+        p00, p01, p11 = P[0], P[1], P[5]
+        c = self._c
+        c2 = self._c2
+        w = u - g
+        h = 0.5 * dt
+        mid = self._midpoint
+        a0 = w - r0 - (r1 + r2 * v) * v
+        vh = v + h * a0
+        if mid:
+            a0 = w - r0 - (r1 + r2 * vh) * vh
+
+        def da(dv: float) -> float:
+            dr = (r1 + r2 * (2.0 * v + dv)) * dv
+            if not mid:
+                return -dr
+            dvh = dv - h * dr
+            return -(r1 + r2 * (2.0 * vh + dvh)) * dvh
+
+        dv0 = c * l10
+        ap, am = da(dv0), da(-dv0)
+        o0, e0 = 0.5 * (ap - am), 0.5 * (ap + am)
+        dv1 = c * l11
+        ap, am = da(dv1), da(-dv1)
+        o1, e1 = 0.5 * (ap - am), 0.5 * (ap + am)
+        big_e = (e0 + e1) / c2
+        abar = a0 + big_e
+        q = self._beta_alpha * big_e * big_e + (o0 * o0 + o1 * o1 + e0 * e0 + e1 * e1) / c2
+        if with_r:
+            if mid:  # a = w - r(vh), vh = v + h (w - r(v)): da/dr_i = -(1 - h r'(vh)) (1, ., .) at vh and v
+                k = h * (r1 + 2.0 * r2 * vh)
+                j0, j1, j2 = 1.0 - k, vh - k * v, vh * vh - k * v * v
+            else:
+                j0, j1, j2 = 1.0, v, v * v
+            q22, q23, q24, q33, q34, q44 = P[9], P[10], P[11], P[12], P[13], P[14]
+            q += (
+                j0 * (j0 * q22 + 2.0 * (j1 * q23 + j2 * q24))
+                + j1 * (j1 * q33 + 2.0 * j2 * q34)
+                + j2 * j2 * q44
+            )
+        ic = 1.0 / c
+        m0 = l00 * o0 * ic
+        m1 = (l10 * o0 + l11 * o1) * ic
+        b0 = h * dt
+        b1 = dt
+        f.m = (m0, m1, 0.0, 0.0, 0.0)
+        m0 = m0 + dt * m1  # A m
+        x[0] = s + dt * v + b0 * abar
+        x[1] = v + dt * abar
+        n01 = p01 + dt * p11
+        n00 = p00 + dt * (p01 + n01) + 2.0 * m0 * b0 + q * b0 * b0
+        n01 += m0 * b1 + b0 * m1 + q * b0 * b1
+        n11 = p11 + 2.0 * m1 * b1 + q * b1 * b1
+        f.q_sv = (0.0, 0.0, 0.0)
+        qa = self._qa
+        if qa > 0.0:
+            qs, qsv, qv = qa * b0 * b0, qa * b0 * b1, qa * b1 * b1
+            n00 += qs
+            n01 += qsv
+            n11 += qv
+            if not self._use_q_gain:
+                f.q_sv = (qs, qsv, qv)
+        f.P = (n00, n01, P[2], P[3], P[4], n11, *P[6:])
+
+    def _update_output(
+        self, f: _Filter, zs: float, zv: float, rs: float, rv: float, s_measured: bool, dt: float
+    ) -> tuple[float, int]:
+        """``_update`` with r a consider parameter on the block-diagonal P of the output filter: only s, v and their
+        covariance block change (the r-(s, v) covariances are zero and stay zero)."""
+        x = f.x
+        P = f.P
+        p00, p01, p11 = P[0], P[1], P[5]
+        if dt > 0.0:
+            qs, qsv, qv = f.q_sv
+        else:
+            qs = qsv = qv = 0.0
+        c00, c01, c11 = p00 - qs, p01 - qsv, p11 - qv
+        nu1 = zv - x[1]
+        if s_measured:
+            nu0 = zs - x[0]
+            s00, s11 = c00 + rs, c11 + rv
+            det = s00 * s11 - c01 * c01
+            if not det > 0.0:
+                return math.nan, 2
+            i00, i01, i11 = s11 / det, -c01 / det, s00 / det
+            k00, k01 = c00 * i00 + c01 * i01, c00 * i01 + c01 * i11
+            k10, k11 = c01 * i00 + c11 * i01, c01 * i01 + c11 * i11
+            x[0] += k00 * nu0 + k01 * nu1
+            x[1] += k10 * nu0 + k11 * nu1
+            f.P = (
+                p00 - (k00 * c00 + k01 * c01),
+                p01 - (k00 * c01 + k01 * c11),
+                *P[2:5],
+                p11 - (k10 * c01 + k11 * c11),
+                *P[6:],
+            )
+            return nu0 * nu0 * i00 + 2.0 * nu0 * nu1 * i01 + nu1 * nu1 * i11, 2
+        sv = c11 + rv
+        if not sv > 0.0:
+            return math.nan, 1
+        k0, k1 = c01 / sv, c11 / sv
+        x[0] += k0 * nu1
+        x[1] += k1 * nu1
+        f.P = (p00 - k0 * c01, p01 - k0 * c11, *P[2:5], p11 - k1 * c11, *P[6:])
+        return nu1 * nu1 / sv, 1
 
     def _update(
         self, f: _Filter, zs: float, zv: float, rs: float, rv: float, s_measured: bool, dt: float, consider: bool
