@@ -967,11 +967,7 @@ class ResistanceEstimator:
             else:
                 j0, j1, j2 = 1.0, v, v * v
             q22, q23, q24, q33, q34, q44 = P[9], P[10], P[11], P[12], P[13], P[14]
-            q += (
-                j0 * (j0 * q22 + 2.0 * (j1 * q23 + j2 * q24))
-                + j1 * (j1 * q33 + 2.0 * j2 * q34)
-                + j2 * j2 * q44
-            )
+            q += j0 * (j0 * q22 + 2.0 * (j1 * q23 + j2 * q24)) + j1 * (j1 * q33 + 2.0 * j2 * q34) + j2 * j2 * q44
         ic = 1.0 / c
         m0 = l00 * o0 * ic
         m1 = (l10 * o0 + l11 * o1) * ic
