@@ -375,6 +375,7 @@ def main() -> int:
     parser.add_argument("--repeat", type=int, default=3)
     parser.add_argument("--latency-seconds", type=float, default=60.0)
     parser.add_argument("--no-single", action="store_true", help="skip the SingleThreadedExecutor comparison")
+    parser.add_argument("--no-window", action="store_true", help="skip the whole graph (window_calib_node)")
     parser.add_argument("--json", type=Path, default=OUT / "bench_graph.json")
     args = parser.parse_args()
 
@@ -383,7 +384,7 @@ def main() -> int:
     track_path = paths.track_file(Path(meta["track"]["file"]).stem)
     train_path = paths.train_file(Path(meta["train"]["file"]).stem)
     track, train = load_track(track_path), load_train(train_path)
-    has_power = bagio.POWER_TOPIC in bagio.bag_topics(args.bag)
+    has_power = bagio.POWER_TOPIC in bagio.bag_topics(args.bag) and not args.no_window
     results: dict = {"bag": str(args.bag), "load_before": load(), "cpus": os.cpu_count(), "throughput": {},
                      "summary": []}  # fmt: skip
     cases = [("estimator chain (4 nodes)", False, "events")]

@@ -297,7 +297,8 @@ class _TrackTerms:
         return GRAVITY * (self.gradient.mean_over(a, s) + self.curvature.mean_over(a, s))
 
     def tunnel_fraction(self, s: float) -> float:
-        return min(max(self.tunnel.mean_over(s - self.length, s), 0.0), 1.0)
+        f = self.tunnel.mean_over(s - self.length, s)
+        return 0.0 if f < 0.0 else 1.0 if f > 1.0 else f  # = min(max(f, 0), 1), without two builtin calls
 
 
 class _Segments:
@@ -333,7 +334,7 @@ class _Segments:
             t = ((e - x0) * dx + (n - y0) * dy) / len2
             t = 0.0 if t < 0.0 else 1.0 if t > 1.0 else t  # = min(max(t, 0), 1)
             si = s0 + t * ds
-            si = min(max(si, lo), hi)
+            si = lo if si < lo else hi if si > hi else si  # = min(max(si, lo), hi) (lo <= hi)
             f = (si - s0) / ds if ds > 0 else 0.0
             d = hypot(x0 + f * dx - e, y0 + f * dy - n)
             if d < best_d:
@@ -1059,7 +1060,8 @@ class Ingest:
         cfg = self.config
         t = sample.stamp_ns
         v = sample.v
-        self._released_t = t if self._released_t is None else max(self._released_t, t)
+        if self._released_t is None or t > self._released_t:
+            self._released_t = t
         if self._direction.direction == BACKWARD:
             # against the track direction: the model runs along increasing s; dead-reckon backwards for the
             # continuity window and publish nothing
@@ -1085,7 +1087,8 @@ class Ingest:
         else:
             self._drop(SPEED, NO_POSITION)
             return None
-        s = min(max(s, 0.0), self.track.length_m)
+        length = self.track.length_m
+        s = 0.0 if s < 0.0 else length if s > length else s  # = min(max(s, 0), length)
         # the measurement becomes the anchor for dead reckoning
         self._anchor_t, self._anchor_s, self._anchor_v = t, s, v
         if measured:  # dead reckoning error grows from the fix itself
@@ -1096,22 +1099,22 @@ class Ingest:
         run_id, dt = self._segment(t, v)
         power = self._nearest_power(t)
         terms = self._terms
-        m = Measurement(
-            stamp_ns=t,
-            s=s,
-            v=v,
-            track_force=terms.track_force(s),
-            dt=dt,
-            run_id=run_id,
-            s_measured=measured,
-            s_variance=s_var,
-            v_variance=cfg.speed_std**2,
-            cross_track=cross_track,
-            speed_limit=terms.limit(s),
-            tunnel_fraction=terms.tunnel_fraction(s),
-            power_valid=power is not None,
-            power_consumed=power.consumed if power is not None else 0.0,
-            power_regenerated=power.regenerated if power is not None else 0.0,
+        m = Measurement(  # positional, in field order: stamp_ns, s, v, track_force, dt, run_id, s_measured,
+            t,  # s_variance, v_variance, cross_track, speed_limit, tunnel_fraction, power_valid, power_consumed,
+            s,  # power_regenerated (a keyword call costs more, per sample)
+            v,
+            terms.track_force(s),
+            dt,
+            run_id,
+            measured,
+            s_var,
+            cfg.speed_std**2,
+            cross_track,
+            terms.limit(s),
+            terms.tunnel_fraction(s),
+            power is not None,
+            power.consumed if power is not None else 0.0,
+            power.regenerated if power is not None else 0.0,
         )
         self.stats.published += 1
         return m

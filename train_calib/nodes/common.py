@@ -109,6 +109,20 @@ ERROR = 2
 _INT64_MAX = 2**63 - 1
 RCLError = _rclpy.RCLError
 
+if set(KeyValue.__slots__) != {"_key", "_value", "_check_fields"}:  # the layout key_value() fills
+    raise ImportError(f"diagnostic_msgs KeyValue: unexpected generated message layout {KeyValue.__slots__}")
+_CHECK_FIELDS = KeyValue()._check_fields  # what the generated constructors set (ROS_PYTHON_CHECK_FIELDS)
+_new = object.__new__
+
+
+def key_value(key: str, value: str) -> KeyValue:
+    """A diagnostic_msgs/KeyValue without the generated constructor's cost (a diagnostics array holds dozens)."""
+    kv = _new(KeyValue)
+    kv._check_fields = _CHECK_FIELDS
+    kv._key = key
+    kv._value = value
+    return kv
+
 
 # -- QoS --------------------------------------------------------------------------------------------
 
@@ -446,12 +460,13 @@ class TrainCalibNode(Node):
     def publish_progress(self) -> None:
         if self._progress_pub is None:
             return
-        values = [KeyValue(key=f"in:{t}", value=str(self._handled[t])) for t in self._input_topics]
+        handled, published = self._handled, self._published
+        values = [key_value(f"in:{t}", str(handled[t])) for t in self._input_topics]
         for topic, pub in self._publishers_by_topic.items():
-            values.append(KeyValue(key=f"out:{topic}", value=str(self._published[topic])))
-            values.append(KeyValue(key=f"matched:{topic}", value=str(pub.get_subscription_count())))
-        values.append(KeyValue(key="pending", value=str(self.pending)))
-        values.append(KeyValue(key="ended", value="1" if self._ended else "0"))
+            values.append(key_value(f"out:{topic}", str(published[topic])))
+            values.append(key_value(f"matched:{topic}", str(pub.get_subscription_count())))
+        values.append(key_value("pending", str(self.pending)))
+        values.append(key_value("ended", "1" if self._ended else "0"))
         self._progress_pub.publish(DiagnosticStatus(name=self.get_name(), hardware_id=HARDWARE_ID, values=values))
 
     # -- end of input and shutdown ------------------------------------------------------------------
@@ -496,32 +511,30 @@ class TrainCalibNode(Node):
         self.refresh_counters()
         now_ns = self.get_clock().now().nanoseconds
         timeout_ns = self.config(NodeConfig).input_timeout * 1e9
-        values: list[tuple[str, Any]] = []
+        values: list[KeyValue] = []
+        add = values.append
         problems: list[tuple[int, str]] = []
         for topic in self._input_topics:
             meter = self._rates[topic]
             rate = meter.take(now_ns)
-            values.append((f"{topic} rate (Hz)", "nan" if math.isnan(rate) else f"{rate:.3f}"))
-            values.append((f"{topic} received", self._received[topic]))
-            for reason, n in sorted(self._drops.get(topic, {}).items()):
-                values.append((f"{topic} dropped {reason}", n))
-            for reason, n in sorted(self._repairs.get(topic, {}).items()):
-                values.append((f"{topic} repaired {reason}", n))
+            add(key_value(f"{topic} rate (Hz)", "nan" if math.isnan(rate) else f"{rate:.3f}"))
+            add(key_value(f"{topic} received", str(self._received[topic])))
+            drops, repairs = self._drops.get(topic), self._repairs.get(topic)
+            if drops:
+                values += [key_value(f"{topic} dropped {reason}", str(n)) for reason, n in sorted(drops.items())]
+            if repairs:
+                values += [key_value(f"{topic} repaired {reason}", str(n)) for reason, n in sorted(repairs.items())]
             if meter.last_ns is not None and now_ns - meter.last_ns > timeout_ns:
                 problems.append((WARN, f"no {topic} for {(now_ns - meter.last_ns) * 1e-9:.0f} s"))
         for topic in self._publishers_by_topic:
-            values.append((f"{topic} published", self._published[topic]))
-        values.extend(self.diagnostic_values())
+            add(key_value(f"{topic} published", str(self._published[topic])))
+        values += [key_value(str(k), str(v)) for k, v in self.diagnostic_values()]
         problems.extend(self.diagnostic_problems())
         level = max((lvl for lvl, _ in problems), default=OK)
         dropped = sum(sum(c.values()) for c in self._drops.values())
         message = "; ".join(text for _, text in problems) if problems else f"OK ({dropped} samples dropped)"
         return DiagnosticStatus(
-            level=bytes([level]),
-            name=self.get_name(),
-            message=message,
-            hardware_id=HARDWARE_ID,
-            values=[KeyValue(key=str(k), value=str(v)) for k, v in values],
+            level=bytes([level]), name=self.get_name(), message=message, hardware_id=HARDWARE_ID, values=values
         )
 
     def publish_diagnostics(self) -> None:
@@ -635,6 +648,7 @@ __all__ = [
     "TrainCalibNode",
     "check_params_files",
     "descriptor_for",
+    "key_value",
     "reliable_qos",
     "run_node",
     "sensor_qos",
