@@ -82,6 +82,18 @@ def test_out_of_order_non_finite_and_missing_power_are_counted(run):
     assert calibrator.counts["no_power"] == 1
 
 
+def test_a_run_without_power_holds_only_one_window_of_steps(run):
+    """Without power the calibrator publishes nothing, and what it holds stays one window long (it leaked
+    one entry per sample before: hours without power on board grew it without bound)."""
+    series = run.series
+    calibrator = WindowCalibrator(TRAIN, WindowConfig(window_length=10.0))
+    for i in range(len(series.t)):
+        assert calibrator.update(dataclasses.replace(series[i], power_valid=False)) is None
+    assert len(series.t) > 100
+    assert len(calibrator._regimes) <= 10 and len(calibrator._rows) <= 10
+    assert calibrator.counts["no_power"] == len(series.t)
+
+
 def test_gap_breaks_the_difference(run):
     series = run.series
     calibrator = WindowCalibrator(TRAIN, WindowConfig(window_length=30.0, max_gap=5.0))

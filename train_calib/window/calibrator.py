@@ -3,69 +3,118 @@
 from __future__ import annotations
 
 import math
-from collections import Counter
+from collections import Counter, deque
 
 import numpy as np
 
 from ..measurement import Measurement, MeasurementSeries
 from ..train import TrainSpec
 from .config import WindowConfig
-from .fit import WindowFit, fit_rows
-from .model import UNKNOWN, DifferenceRows, difference_rows, regime_from_power, tractive_force
+from .fast import FastFit
+from .fit import WindowFit, fit_design
+from .model import BRAKING, UNKNOWN, StepModel
 
 
 class _RowBuffer:
-    """The difference rows of the current window, oldest first, in preallocated arrays."""
+    """The rows of the current window the fit uses, oldest first, in preallocated arrays (x and y side by side)."""
 
     def __init__(self, capacity: int = 64) -> None:
         self._alloc(capacity)
 
     def _alloc(self, capacity: int) -> None:
         self.end_ns = np.empty(capacity, dtype=np.int64)
-        self.t_end = np.empty(capacity)
-        self.x = np.empty((capacity, 3))
-        self.y = np.empty(capacity)
-        self.upper = np.empty(capacity)
-        self.v = np.empty(capacity)
-        self.acceleration = np.empty(capacity)
-        self.force = np.empty(capacity)
-        self.valid = np.empty(capacity, dtype=bool)
-        self.regime = np.empty(capacity, dtype=np.uint8)
+        self.xy = np.empty((capacity, 4))  # x (1, v, v^2 (1 + f_tun tau)) and y, N/kg
+        self.upper = np.empty(capacity)  # N/kg
+        self.upper_tol = np.empty(capacity)  # upper + 1e-12 max(1, |upper|), the solver's feasibility test
+        self.v = np.empty(capacity)  # m/s
+        self.negative = np.empty(capacity, dtype=bool)  # a negative entry in x
         self.start = self.stop = 0
+        self.negatives = 0
 
-    _NAMES = ("end_ns", "t_end", "x", "y", "upper", "v", "acceleration", "force", "valid", "regime")
+    _NAMES = ("end_ns", "xy", "upper", "upper_tol", "v", "negative")
 
     def clear(self) -> None:
         self.start = self.stop = 0
+        self.negatives = 0
 
     def __len__(self) -> int:
         return self.stop - self.start
 
-    def append(self, end_ns: int, row: DifferenceRows, regime: int) -> None:
-        if self.stop == len(self.y):
+    def append(self, end_ns: int, row: tuple[float, ...]) -> None:
+        """Add a row (x0, x1, x2, y, upper, v, ...) as StepModel.row gives it."""
+        if self.stop == len(self.v):
             live = {name: getattr(self, name)[self.start : self.stop].copy() for name in self._NAMES}
+            negatives = self.negatives
             if self.start == 0:
-                self._alloc(2 * len(self.y))
-            self.start, self.stop = 0, len(live["y"])
+                self._alloc(2 * len(self.v))
+            self.start, self.stop, self.negatives = 0, len(live["v"]), negatives
             for name, values in live.items():
                 getattr(self, name)[: self.stop] = values
         i = self.stop
+        x0, x1, x2, _, upper = row[:5]
         self.end_ns[i] = end_ns
-        self.t_end[i], self.x[i], self.y[i], self.upper[i] = row.t_end[0], row.x[0], row.y[0], row.upper[0]
-        self.v[i], self.acceleration[i], self.force[i] = row.v[0], row.acceleration[0], row.force[0]
-        self.valid[i], self.regime[i] = row.valid[0], regime
+        self.xy[i] = row[:4]
+        self.upper[i] = upper
+        self.upper_tol[i] = upper + 1e-12 * max(1.0, abs(upper))
+        self.v[i] = row[5]
+        negative = x0 < 0.0 or x1 < 0.0 or x2 < 0.0
+        self.negative[i] = negative
+        self.negatives += negative
         self.stop += 1
 
     def expire(self, min_ns: int) -> None:
         """Drop the steps that end at or before min_ns (stamps in ns, so windows of whole seconds are exact)."""
         while self.start < self.stop and self.end_ns[self.start] <= min_ns:
+            self.negatives -= bool(self.negative[self.start])
             self.start += 1
 
-    def view(self) -> tuple[DifferenceRows, np.ndarray]:
+    def view(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """[x y] (n, 4), upper, upper_tol, v of the rows in the window."""
         s = slice(self.start, self.stop)
-        rows = DifferenceRows(self.t_end[s], self.x[s], self.y[s], self.upper[s], self.v[s], self.acceleration[s],
-                              self.force[s], self.valid[s])  # fmt: skip
-        return rows, self.regime[s]
+        return self.xy[s], self.upper[s], self.upper_tol[s], self.v[s]
+
+
+class _RegimeTally:
+    """The window's steps with the regimes of the valid ones: count per regime and the newest step of each."""
+
+    def __init__(self) -> None:
+        self.steps: deque[tuple[int, int | None]] = deque()  # (end_ns, regime or None: not valid), oldest first
+        self.counts: dict[int, int] = {}
+        self.newest: dict[int, int] = {}  # regime -> sequence number of its newest step
+        self.sequence = 0
+
+    def clear(self) -> None:
+        self.steps.clear()
+        self.counts.clear()
+        self.newest.clear()
+
+    def append(self, end_ns: int, regime: int | None) -> None:
+        self.steps.append((end_ns, regime))
+        if regime is None:
+            return
+        self.counts[regime] = self.counts.get(regime, 0) + 1
+        self.sequence += 1
+        self.newest[regime] = self.sequence
+
+    def expire(self, min_ns: int) -> None:
+        steps, counts = self.steps, self.counts
+        while steps and steps[0][0] <= min_ns:
+            regime = steps.popleft()[1]
+            if regime is None:
+                continue
+            counts[regime] -= 1
+            if not counts[regime]:
+                del counts[regime]
+
+    def __len__(self) -> int:
+        return len(self.steps)
+
+    def dominant(self) -> int:
+        """fit.dominant_regime of the valid steps: the most frequent; a tie goes to the newest step's regime."""
+        if not self.counts:
+            return UNKNOWN
+        top = max(self.counts.values())
+        return max((r for r, count in self.counts.items() if count == top), key=self.newest.__getitem__)
 
 
 class WindowCalibrator:
@@ -77,40 +126,52 @@ class WindowCalibrator:
     inactive without it), is out of order or not finite, or no step has been completed yet. A new
     run_id starts a new window; the published values of the last well-posed window are kept across
     runs (same train). ``counts`` tallies samples and fits by outcome for diagnostics.
+
+    fast: the RMSE fit from the window's QR factor (:mod:`.fast`, equal to the reference to round-off);
+    False: every window by the reference solver (``fit_design``).
     """
 
-    def __init__(self, train: TrainSpec, config: WindowConfig | None = None) -> None:
+    def __init__(self, train: TrainSpec, config: WindowConfig | None = None, fast: bool = True) -> None:
         self.train = train
-        self.config = config or WindowConfig()
+        self.fast = fast
         self.counts: Counter[str] = Counter()
         self.last_fit: WindowFit | None = None
-        self._rows = _RowBuffer(max(16, int(2 * self.config.window_length) + 4))
         self._origin_ns: int | None = None
-        self._last: tuple | None = None  # (stamp_ns, t, v, f, g, tau, v_variance, regime, run_id)
+        self.set_config(config or WindowConfig())
 
     def set_config(self, config: WindowConfig) -> None:
         """New settings: the window restarts (its steps depend on them); published values are kept."""
         self.config = config
+        self._step = StepModel(self.train, config)
+        self._fit = FastFit(self.train, config)
         self._rows = _RowBuffer(max(16, int(2 * config.window_length) + 4))
-        self._last = None
+        self._regimes = _RegimeTally()
+        self._window_ns = round(config.window_length * 1e9)
+        self._last: tuple | None = None  # (stamp_ns, run_id, regime, (t, v, f, g, tau, v_variance, limit))
+
+    @property
+    def reference_windows(self) -> int:
+        """Windows fitted by the reference solver (all of them with fast=False; see :mod:`.fast`)."""
+        return self._fit.reference
 
     def reset(self) -> None:
         """Forget the window and the published values (a different train)."""
-        self._rows.clear()
-        self._last = None
+        self._clear()
         self._origin_ns = None
         self.last_fit = None
 
+    def _clear(self) -> None:
+        self._rows.clear()
+        self._regimes.clear()
+        self._last = None
+
     def update(self, m: Measurement, regime: int | None = None) -> WindowFit | None:
         cfg = self.config
-        if not all(math.isfinite(value) for value in (m.v, m.track_force, m.tunnel_fraction, m.v_variance)) or (
-            m.power_valid and not (math.isfinite(m.power_consumed) and math.isfinite(m.power_regenerated))
-        ):
+        if not _finite(m):
             self.counts["non_finite"] += 1
             return None
-        if self._last is not None and m.run_id != self._last[8]:
-            self._rows.clear()
-            self._last = None
+        if self._last is not None and m.run_id != self._last[1]:
+            self._clear()
             self.counts["new_run"] += 1
         if self._last is not None and m.stamp_ns <= self._last[0]:
             self.counts["out_of_order"] += 1
@@ -118,41 +179,61 @@ class WindowCalibrator:
         if self._origin_ns is None:
             self._origin_ns = m.stamp_ns
         t = (m.stamp_ns - self._origin_ns) * 1e-9
-        if m.power_valid:
-            force = float(tractive_force(m.v, m.power_consumed, m.power_regenerated, self.train, cfg.min_speed))
-            force /= self.train.effective_mass_kg
-        else:
-            force = math.nan
+        step = self._step
+        force = step.force(m.v, m.power_consumed, m.power_regenerated) if m.power_valid else math.nan
         if cfg.regime_source == "power" or regime == UNKNOWN:
             regime = None
-        sample = (m.stamp_ns, t, m.v, force, m.track_force, m.tunnel_fraction, m.v_variance, regime, m.run_id)
-        previous, self._last = self._last, sample
+        sample = (t, m.v, force, m.track_force, m.tunnel_fraction, m.v_variance, step.limit(m.v))
+        previous, self._last = self._last, (m.stamp_ns, m.run_id, regime, sample)
         if previous is not None:
-            _, t0, v0, f0, g0, tau0, var0, regime0, _ = previous
-            row = difference_rows(
-                (t0, t), (v0, m.v), (f0, force), (g0, m.track_force), (tau0, m.tunnel_fraction), self.train, cfg,
-                v_variance=(var0, m.v_variance),
-            )  # fmt: skip
-            if regime0 is None:
-                regime0 = int(regime_from_power(row.force, row.acceleration, cfg)[0])
-            self._rows.append(m.stamp_ns, row, regime0)
-            if not row.valid[0]:
-                self.counts["invalid_step"] += 1
+            self._add_step(m.stamp_ns, previous[2], previous[3], sample)
+        min_ns = m.stamp_ns - self._window_ns  # expired with or without power: the window holds window_length
+        self._rows.expire(min_ns)
+        self._regimes.expire(min_ns)
         if not m.power_valid:
             self.counts["no_power"] += 1
             return None
         if m.v < cfg.min_speed:
             self.counts["below_min_speed"] += 1
-        self._rows.expire(m.stamp_ns - round(cfg.window_length * 1e9))
-        if len(self._rows) == 0:
+        if not self._regimes:  # no step in the window
             return None
-        rows, regimes = self._rows.view()
-        fit = fit_rows(rows, regimes, self.train, cfg, stamp_ns=m.stamp_ns, run_id=m.run_id, previous=self.last_fit)
+        fit = self._fit_window(m.stamp_ns, m.run_id)
         self.counts["ill_posed" if fit.ill_posed else "well_posed"] += 1
         if fit.dropped_constraints:
             self.counts["windows_with_dropped_constraints"] += 1
         self.last_fit = fit
         return fit
+
+    def _add_step(self, end_ns: int, regime: int | None, start: tuple, end: tuple) -> None:
+        """The step from the previous sample (its regime, or None: from power) to this one."""
+        row = self._step.row(start, end)
+        if row is None:
+            self.counts["invalid_step"] += 1
+            self._regimes.append(end_ns, None)
+            return
+        if regime is None:
+            regime = self._step.regime(row[7], row[6])
+        self._regimes.append(end_ns, regime)
+        if not (self.config.exclude_braking and regime == BRAKING):
+            self._rows.append(end_ns, row)
+
+    def _fit_window(self, stamp_ns: int, run_id: int) -> WindowFit:
+        xy, upper, upper_tol, v = self._rows.view()
+        regime = self._regimes.dominant()
+        context = {"stamp_ns": stamp_ns, "run_id": run_id, "previous": self.last_fit}
+        if not self.fast:
+            self._fit.reference += 1
+            return fit_design(xy[:, :3], xy[:, 3], upper, v, regime, self.train, self.config, **context)
+        return self._fit(xy, upper, upper_tol, v, regime, nonnegative=not self._rows.negatives, **context)
+
+
+def _finite(m: Measurement) -> bool:
+    """Speed, track force, tunnel fraction, speed variance and (if valid) the powers are finite."""
+    if not (math.isfinite(m.v) and math.isfinite(m.track_force) and math.isfinite(m.tunnel_fraction)):
+        return False
+    if not math.isfinite(m.v_variance):
+        return False
+    return not m.power_valid or (math.isfinite(m.power_consumed) and math.isfinite(m.power_regenerated))
 
 
 def calibrate_series(

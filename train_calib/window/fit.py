@@ -146,25 +146,35 @@ def fit_rows(
     regimes: one DrivingRegime constant per row; previous: the last result, whose published values
     are carried over when this window is ill posed.
     """
-    mass = train.effective_mass_kg
     regimes = np.asarray(regimes)
     regime = dominant_regime(regimes[rows.valid])
     keep = rows.valid & (regimes != BRAKING) if config.exclude_braking else rows.valid
-    x, y, upper, v = rows.x[keep], rows.y[keep], rows.upper[keep], rows.v[keep]
+    return fit_design(rows.x[keep], rows.y[keep], rows.upper[keep], rows.v[keep], regime, train, config,
+                      stamp_ns=stamp_ns, run_id=run_id, previous=previous)  # fmt: skip
+
+
+def fit_design(
+    x: np.ndarray,
+    y: np.ndarray,
+    upper: np.ndarray,
+    v: np.ndarray,
+    regime: int,
+    train: TrainSpec,
+    config: WindowConfig,
+    *,
+    stamp_ns: int = 0,
+    run_id: int = 0,
+    previous: WindowFit | None = None,
+) -> WindowFit:
+    """The reference fit of the rows used (x (n, 3), y, upper in N/kg, v in m/s): the exact solver on the rows.
+
+    regime: the window's dominant regime (of its valid steps, braking ones included).
+    """
     n = len(y)
-    common = {
-        "stamp_ns": int(stamp_ns),
-        "run_id": int(run_id),
-        "window_length": float(config.window_length),
-        "sample_count": n,
-        "gof_kind": config.gof_kind,
-        "regime": regime,
-    }
-    held = (previous.r0, previous.r1, previous.r2) if previous is not None else NAN3
     if n == 0:
         reason = ill_posed_reason(0, 0.0, math.inf, config)
-        return WindowFit(gof_value=math.nan, **_published(held, mass), ill_posed=True, speed_span=0.0, reason=reason,
-                         **common)  # fmt: skip
+        return make_fit(train, config, n=0, regime=regime, reason=reason, stamp_ns=stamp_ns, run_id=run_id,
+                        previous=previous)  # fmt: skip
     span = float(v.max() - v.min())
     condition = scaled_condition_number(x)
     solution = solvers.solve(x, y, config.specific_bounds, upper, config.gof)
@@ -173,17 +183,58 @@ def fit_rows(
     relative_error = float(np.max(se / np.asarray(train.davis(speeds)))) if len(speeds) else 0.0
     reason = ill_posed_reason(n, span, condition, config, relative_error)
     estimate = tuple(float(value) for value in solution.theta)
+    return make_fit(train, config, n=n, regime=regime, span=span, mean_speed=float(v.mean()), condition=condition,
+                    estimate=estimate, objective=solution.objective, relative_error=relative_error,
+                    dropped=solution.dropped_constraints, reason=reason, stamp_ns=stamp_ns, run_id=run_id,
+                    previous=previous)  # fmt: skip
+
+
+def make_fit(
+    train: TrainSpec,
+    config: WindowConfig,
+    *,
+    n: int,
+    regime: int,
+    reason: str,
+    stamp_ns: int,
+    run_id: int,
+    previous: WindowFit | None,
+    span: float = 0.0,
+    mean_speed: float = math.nan,
+    condition: float = math.inf,
+    estimate: tuple[float, float, float] | None = None,
+    objective: float = math.nan,
+    relative_error: float = math.inf,
+    dropped: int = 0,
+) -> WindowFit:
+    """The WindowFit of a window's numbers: span, mean_speed in m/s, estimate (r0, r1, r2) and objective in N/kg.
+
+    estimate None: no solution (no usable step); the published values are then the previous ones.
+    """
+    mass = train.effective_mass_kg
+    held = (previous.r0, previous.r1, previous.r2) if previous is not None else NAN3
+    common = {
+        "stamp_ns": int(stamp_ns),
+        "run_id": int(run_id),
+        "window_length": float(config.window_length),
+        "sample_count": n,
+        "gof_kind": config.gof_kind,
+        "regime": regime,
+    }
+    if estimate is None:
+        return WindowFit(gof_value=math.nan, **_published(held, mass), ill_posed=True, speed_span=0.0, reason=reason,
+                         **common)  # fmt: skip
     return WindowFit(
-        gof_value=solution.objective * mass,
+        gof_value=objective * mass,
         **_published(held if reason else estimate, mass),
         ill_posed=bool(reason),
         speed_span=span,
         estimate=estimate,
         condition_number=condition,
-        mean_speed=float(v.mean()),
+        mean_speed=mean_speed,
         relative_error=relative_error,
         reason=reason,
-        dropped_constraints=solution.dropped_constraints,
+        dropped_constraints=dropped,
         **common,
     )
 

@@ -14,6 +14,7 @@ y_k = f_k - g_k - a_k. The residual e_k times M is their E_k (eq. 8), in N.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -160,3 +161,91 @@ def regime_from_power(force, acceleration, config: WindowConfig) -> np.ndarray:
     regime = np.where(np.abs(a) <= config.cruise_tolerance, CRUISING, regime)
     regime = np.where(np.abs(f) <= config.effort_tolerance, COASTING, regime)
     return np.where(np.isfinite(f) & np.isfinite(a), regime, UNKNOWN).astype(np.uint8)
+
+
+class StepModel:
+    """One step of :func:`difference_rows` (and :func:`tractive_force`, :func:`regime_from_power`) in plain floats.
+
+    The streaming calibrator's per-sample work: the same operations in the same order as the array
+    functions, so a valid row is equal bit for bit (tested); for an invalid step only ``None`` is returned.
+    """
+
+    def __init__(self, train: TrainSpec, config: WindowConfig) -> None:
+        self.config = config
+        self.mass = train.effective_mass_kg
+        self.eta = train.transmission_efficiency
+        self.auxiliary_w = train.auxiliary_power_kw * 1000.0
+        self.tunnel_factor = train.tunnel_factor
+        self.traction = config.traction_constraint
+        self.c0, self.c2 = train.max_tractive_effort, train.max_tractive_power
+        self.v_transition = physics.transition_speed(self.c0, self.c2)
+        self.adhesion = config.adhesion_constraint and train.adhesive_mass_fraction > 0.0
+        self.adhesive_fraction = train.adhesive_mass_fraction
+        self.gamma = train.rotating_mass_factor
+
+    def force(self, v: float, power_consumed: float, power_regenerated: float) -> float:
+        """Measured tractive force per effective mass (tractive_force / M), N/kg; NaN below min_speed."""
+        consumed = power_consumed - self.auxiliary_w
+        wheel = (self.eta * consumed if consumed > 0.0 else 0.0) - power_regenerated / self.eta
+        if consumed < 0.0:
+            wheel = wheel + consumed / self.eta
+        min_speed = self.config.min_speed
+        return wheel / max(v, min_speed) / self.mass if v >= min_speed else math.nan
+
+    def limit(self, v: float) -> float:
+        """envelope_limit at a finite speed v (m/s), N/kg."""
+        limit = math.inf
+        if self.traction:
+            if v <= self.v_transition:
+                envelope = self.c0 + 0.0 * v
+            else:
+                envelope = self.c2 / max(v, 1e-12) if v > 0.0 else math.inf
+            limit = min(limit, max(envelope, 0.0))
+        if self.adhesion:
+            mu = 0.161 + 7.5 / (3.6 * v + 44.0)
+            limit = min(limit, mu * physics.GRAVITY * self.adhesive_fraction / self.gamma)
+        return limit
+
+    def row(self, start: tuple, end: tuple) -> tuple[float, ...] | None:
+        """The row of the step between two samples (t s, v m/s, f N/kg, g N/kg, tau, v_variance (m/s)^2, limit N/kg).
+
+        Returns (x0, x1, x2, y, upper, v, acceleration, force) as in DifferenceRows, or None if not valid.
+        """
+        cfg = self.config
+        t0, v0, f0, g0, tau0, var0, lim0 = start
+        t1, v1, f1, g1, tau1, var1, lim1 = end
+        dt = t1 - t0
+        if not (dt > 0.0 and dt <= cfg.max_gap):
+            return None
+        a = (v1 - v0) / dt
+        c20 = v0 * v0 * (1.0 + self.tunnel_factor * tau0)
+        scheme = cfg.difference_scheme
+        if scheme == "forward":
+            x1, x2, f, g, v, lim = v0, c20, f0, g0, v0, lim0
+            speed_ok = v0 >= cfg.min_speed
+        else:
+            c21 = v1 * v1 * (1.0 + self.tunnel_factor * tau1)
+            x1, x2 = 0.5 * (v0 + v1), 0.5 * (c20 + c21)
+            g, v = 0.5 * (g0 + g1), 0.5 * (v0 + v1)
+            if scheme == "trapezoid":
+                f, lim = 0.5 * (f0 + f1), 0.5 * (lim0 + lim1)
+                speed_ok = v0 >= cfg.min_speed and v1 >= cfg.min_speed
+            else:
+                f, lim = f0, lim0
+                speed_ok = v0 >= cfg.min_speed
+        y = f - g - a
+        variance = var0 + var1
+        margin = cfg.constraint_sigma * math.sqrt(variance) / dt if variance >= 0.0 else math.nan
+        upper = lim - g - a + margin
+        if not (speed_ok and math.isfinite(y) and math.isfinite(x1) and math.isfinite(x2)) or math.isnan(upper):
+            return None
+        return (1.0, x1, x2, y, upper, v, a, f)
+
+    def regime(self, force: float, acceleration: float) -> int:
+        """regime_from_power of one step (finite force and acceleration)."""
+        cfg = self.config
+        if abs(force) <= cfg.effort_tolerance:
+            return COASTING
+        if abs(acceleration) <= cfg.cruise_tolerance:
+            return CRUISING
+        return TRACTION if force > 0.0 else BRAKING

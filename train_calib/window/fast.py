@@ -1,0 +1,306 @@
+"""The streaming calibrator's fast path for RMSE: the window's fit from the 4 x 4 QR factor of [x y].
+
+Least squares depends on the rows only through R, the triangular factor of the column-scaled
+[x / scale, y] (one LAPACK call on n x 4): ||x theta - y||^2 = ||R3 phi - c||^2 + rho^2 with
+phi = theta * scale. The bounded problem in three variables is then solved exactly by the KKT
+conditions of its active sets (each variable free, at its lower or at its upper bound), the last
+window's active set tried first; if the result violates an eq. 6/7 row, by the reference's own
+Lawson & Hanson reduction LSI -> LDP -> NNLS on R3. The condition number and the standard errors
+come from R3 too. No sums are carried from window to window (no cancellation over long runs).
+
+Whatever this path does not cover is left to the reference (``fit_design``: the same results by
+construction): SAE, fewer than 4 rows, infinite bounds, negative design entries, a condition number
+above ``MAX_CONDITION`` (near rank deficiency: the exact solution is not unique, the reference picks
+one), or any numerical doubt. Agreement with the reference: test/window/test_window_fast.py.
+"""
+
+from __future__ import annotations
+
+import math
+from itertools import product
+
+import numpy as np
+from scipy.linalg import lapack
+from scipy.optimize import nnls
+
+from ..physics import KMH
+from ..train import TrainSpec
+from .config import WindowConfig
+from .fit import WindowFit, fit_design, ill_posed_reason, make_fit
+
+MAX_CONDITION = 1e6
+"""Above this scaled condition number the window goes to the reference solver (never published at the defaults)."""
+
+Pattern = tuple[int, int, int]
+"""Active set of the bounds: per variable -1 at the lower bound, 0 free, 1 at the upper bound."""
+
+PATTERNS: tuple[Pattern, ...] = tuple(product((0, -1, 1), repeat=3))  # type: ignore[assignment]
+
+
+class FastFit:
+    """Fit of one window of rows for a (train, config); ``reference`` counts the windows left to fit_design."""
+
+    def __init__(self, train: TrainSpec, config: WindowConfig) -> None:
+        self.train, self.config = train, config
+        bounds = config.specific_bounds
+        self.lo = [b[0] for b in bounds]
+        self.hi = [b[1] for b in bounds]
+        self.enabled = config.gof == "rmse" and all(math.isfinite(b) for b in self.lo + self.hi)
+        self.lo_zero = all(b == 0.0 for b in self.lo)
+        speeds = np.asarray(config.reference_speeds_kmh, dtype=float) * KMH
+        self.speeds = speeds.tolist()
+        self.davis = np.asarray(train.davis(speeds), dtype=float).tolist()
+        self.pattern: Pattern = (0, 0, 0)
+        self.reference = 0
+        self.constrained = 0  # windows solved by the LDP (an eq. 6/7 row binds)
+
+    def __call__(
+        self,
+        xy: np.ndarray,
+        upper: np.ndarray,
+        upper_tol: np.ndarray,
+        v: np.ndarray,
+        regime: int,
+        *,
+        stamp_ns: int,
+        run_id: int,
+        previous: WindowFit | None,
+        nonnegative: bool = True,
+    ) -> WindowFit:
+        """The rows used: xy (n, 4) = [x y], upper (N/kg), upper_tol = upper + 1e-12 max(1, |upper|), v (m/s).
+
+        nonnegative: every entry of x is >= 0 (the caller knows it from the rows).
+        """
+        context = {"stamp_ns": stamp_ns, "run_id": run_id, "previous": previous}
+        fit = self._fast(xy, upper, upper_tol, v, regime, context) if self.enabled and nonnegative else None
+        if fit is None:
+            self.reference += 1
+            fit = fit_design(xy[:, :3], xy[:, 3], upper, v, regime, self.train, self.config, **context)
+        return fit
+
+    def _fast(self, xy, upper, upper_tol, v, regime, context) -> WindowFit | None:
+        n = len(v)
+        if n < 4:
+            return None
+        x = xy[:, :3]
+        s0, s1, s2 = x.max(axis=0).tolist()
+        scale = (s0 if s0 > 0.0 else 1.0, s1 if s1 > 0.0 else 1.0, s2 if s2 > 0.0 else 1.0)
+        xys = xy / (scale[0], scale[1], scale[2], 1.0)
+        qr, _, _, info = lapack.dgeqrf(xys)
+        if info != 0:
+            return None
+        r = qr[:4, :4].tolist()
+        condition = _scaled_condition(r)
+        if not condition <= MAX_CONDITION:
+            return None
+        xs = xys[:, :3]
+        lo = [b * s for b, s in zip(self.lo, scale)]
+        hi = [b * s for b, s in zip(self.hi, scale)]
+        # eq. 6/7 rows that hold at the lower bounds; the others are dropped
+        alone = upper_tol >= 0.0 if self.lo_zero else xs @ lo <= upper_tol
+        dropped = n - int(np.count_nonzero(alone))
+        phi = self._box(r, lo, hi)
+        if phi is None:
+            return None
+        feasible = xs @ phi <= upper_tol
+        if not (feasible.all() if not dropped else np.all(feasible, where=alone)):
+            self.constrained += 1
+            use = alone & np.isfinite(upper)
+            phi = _lsi(r, lo, hi, xs[use], upper[use])
+            if phi is None:
+                return None
+            phi = _clip(phi, lo, hi)
+        theta = [p / s for p, s in zip(phi, scale)]
+        e = xy[:, 3] - x @ theta
+        squares = float(e @ e)
+        relative_error = self._relative_error(r, scale, math.sqrt(squares / (n - 3)))
+        span = float(v.max() - v.min())
+        reason = ill_posed_reason(n, span, condition, self.config, relative_error)
+        return make_fit(self.train, self.config, n=n, regime=regime, span=span, mean_speed=float(v.sum()) / n,
+                        condition=condition, estimate=(theta[0], theta[1], theta[2]),
+                        objective=math.sqrt(squares / n), relative_error=relative_error, dropped=dropped,
+                        reason=reason, **context)  # fmt: skip
+
+    def _box(self, r, lo, hi) -> list[float] | None:
+        """min ||R3 phi - c|| over lo <= phi <= hi (scaled variables): the active set meeting the KKT conditions.
+
+        From the last window's active set, each miss corrected (a free variable out of its bounds fixed
+        at the bound it crosses, a bound with the gradient pointing inwards freed); every active set if
+        that cycles.
+        """
+        current, tried = self.pattern, set()
+        while current not in tried:
+            tried.add(current)
+            phi = _solve(r, current, lo, hi)
+            if phi is None:
+                break
+            corrected = _kkt(r, phi, current, lo, hi)
+            if corrected is None:
+                self.pattern = current
+                return _clip(phi, lo, hi)
+            current = corrected
+        for pattern in PATTERNS:
+            if pattern in tried:
+                continue
+            phi = _solve(r, pattern, lo, hi)
+            if phi is not None and _kkt(r, phi, pattern, lo, hi) is None:
+                self.pattern = pattern
+                return _clip(phi, lo, hi)
+        return None
+
+    def _relative_error(self, r, scale, sigma: float) -> float:
+        """max over the reference speeds of the standard error of r(v) / the train file's r(v) (as the reference)."""
+        if not self.speeds:
+            return 0.0
+        (r00, r01, r02, _), (_, r11, r12, _), (_, _, r22, _) = r[0], r[1], r[2]
+        d0 = 1.0  # |diagonal| / column norm of the column-normalised R3
+        d1 = abs(r11) / math.sqrt(r01 * r01 + r11 * r11)
+        d2 = abs(r22) / math.sqrt(r02 * r02 + r12 * r12 + r22 * r22)
+        if min(d0, d1, d2) <= 1e-12 * max(d0, d1, d2):
+            return math.inf
+        worst = -math.inf
+        for speed, davis in zip(self.speeds, self.davis):
+            w0 = 1.0 / scale[0] / r00  # R3^T w = (1, v, v^2) / scale, forward substitution
+            w1 = (speed / scale[1] - r01 * w0) / r11
+            w2 = (speed * speed / scale[2] - r02 * w0 - r12 * w1) / r22
+            se = sigma * math.sqrt(w0 * w0 + w1 * w1 + w2 * w2)
+            ratio = se / davis if davis != 0.0 else (math.inf if se > 0.0 else math.nan)
+            if math.isnan(ratio):
+                return math.nan
+            worst = max(worst, ratio)
+        return worst
+
+
+def _scaled_condition(r) -> float:
+    """2-norm condition number of R3 with unit columns (= that of x with unit columns, Belsley's)."""
+    (r00, r01, r02, _), (_, r11, r12, _), (_, _, r22, _) = r[0], r[1], r[2]
+    n0 = abs(r00)
+    n1 = math.sqrt(r01 * r01 + r11 * r11)
+    n2 = math.sqrt(r02 * r02 + r12 * r12 + r22 * r22)
+    if n0 == 0.0 or n1 == 0.0 or n2 == 0.0:
+        return math.inf
+    b = np.array(((r00 / n0, r01 / n1, r02 / n2), (0.0, r11 / n1, r12 / n2), (0.0, 0.0, r22 / n2)))
+    _, sv, _, info = lapack.dgesdd(b, compute_uv=0)
+    if info != 0:
+        return math.nan
+    return float(sv[0] / sv[2]) if sv[2] > 0.0 else math.inf
+
+
+def _solve(r, pattern: Pattern, lo, hi) -> list[float] | None:
+    """Least squares of R3 phi = c with the variables of the pattern fixed at their bounds (None: singular)."""
+    (r00, r01, r02, c0), (_, r11, r12, c1), (_, _, r22, c2) = r[0], r[1], r[2]
+    p0, p1, p2 = pattern
+    if not (p0 or p1 or p2):  # all free: back substitution
+        if r00 == 0.0 or r11 == 0.0 or r22 == 0.0:
+            return None
+        x2 = c2 / r22
+        x1 = (c1 - r12 * x2) / r11
+        return [(c0 - r01 * x1 - r02 * x2) / r00, x1, x2]
+    phi = [lo[j] if p < 0 else hi[j] if p > 0 else 0.0 for j, p in enumerate(pattern)]
+    f0, f1, f2 = (0.0 if p0 == 0 else phi[0]), (0.0 if p1 == 0 else phi[1]), (0.0 if p2 == 0 else phi[2])
+    d = (c0 - r00 * f0 - r01 * f1 - r02 * f2, c1 - r11 * f1 - r12 * f2, c2 - r22 * f2)
+    columns = [column for column, p in zip(((r00, 0.0, 0.0), (r01, r11, 0.0), (r02, r12, r22)), pattern) if not p]
+    values = _lstsq(columns, d)
+    if values is None:
+        return None
+    free = iter(values)
+    return [next(free) if not p else value for p, value in zip(pattern, phi)]
+
+
+def _lstsq(columns, d) -> list[float] | None:
+    """Least squares with no, one or two columns of length 3, by modified Gram-Schmidt on [columns d]."""
+    if not columns:
+        return []
+    (a0, a1, a2), (d0, d1, d2) = columns[0], d
+    r11 = math.sqrt(a0 * a0 + a1 * a1 + a2 * a2)
+    if r11 == 0.0:
+        return None
+    q0, q1, q2 = a0 / r11, a1 / r11, a2 / r11
+    e1 = q0 * d0 + q1 * d1 + q2 * d2
+    if len(columns) == 1:
+        return [e1 / r11]
+    b0, b1, b2 = columns[1]
+    r12 = q0 * b0 + q1 * b1 + q2 * b2
+    b0, b1, b2 = b0 - r12 * q0, b1 - r12 * q1, b2 - r12 * q2
+    r22 = math.sqrt(b0 * b0 + b1 * b1 + b2 * b2)
+    if r22 <= 1e-14 * r11:
+        return None
+    e2 = (b0 * (d0 - e1 * q0) + b1 * (d1 - e1 * q1) + b2 * (d2 - e1 * q2)) / r22
+    x2 = e2 / r22
+    return [(e1 - r12 * x2) / r11, x2]
+
+
+def _kkt(r, phi, pattern: Pattern, lo, hi) -> Pattern | None:
+    """None if phi meets the KKT conditions of the bounded problem with this active set, else the corrected set.
+
+    Free variables must lie within their bounds (to 1e-12 of the range), the gradient of a variable at
+    a bound must point out of the box (to round-off).
+    """
+    (r00, r01, r02, c0), (_, r11, r12, c1), (_, _, r22, c2) = r[0], r[1], r[2]
+    x0, x1, x2 = phi
+    e0 = r00 * x0 + r01 * x1 + r02 * x2 - c0  # residual R3 phi - c
+    e1 = r11 * x1 + r12 * x2 - c1
+    e2 = r22 * x2 - c2
+    size = math.sqrt(c0 * c0 + c1 * c1 + c2 * c2) + abs(r00 * x0) + abs(r01 * x1) + abs(r02 * x2)
+    size += abs(r11 * x1) + abs(r12 * x2) + abs(r22 * x2)  # scale of the residual's terms, for the round-off
+    corrected, ok = list(pattern), True
+    for j, p in enumerate(pattern):
+        if p == 0:
+            margin = 1e-12 * (hi[j] - lo[j])
+            if phi[j] < lo[j] - margin:
+                corrected[j], ok = -1, False
+            elif phi[j] > hi[j] + margin:
+                corrected[j], ok = 1, False
+            continue
+        if j == 0:
+            gradient, norm = r00 * e0, abs(r00)
+        elif j == 1:
+            gradient, norm = r01 * e0 + r11 * e1, math.sqrt(r01 * r01 + r11 * r11)
+        else:
+            gradient, norm = r02 * e0 + r12 * e1 + r22 * e2, math.sqrt(r02 * r02 + r12 * r12 + r22 * r22)
+        tolerance = 1e-12 * norm * size
+        if (p < 0 and gradient < -tolerance) or (p > 0 and gradient > tolerance):
+            corrected[j], ok = 0, False
+    return None if ok else (corrected[0], corrected[1], corrected[2])
+
+
+def _clip(phi, lo, hi) -> list[float]:
+    return [min(max(p, low), high) for p, low, high in zip(phi, lo, hi)]
+
+
+_BOUND_ROWS = np.vstack([np.eye(3), -np.eye(3)])
+_TARGET = np.array([0.0, 0.0, 0.0, 1.0])
+
+
+def _lsi(r, lo, hi, rows: np.ndarray, rhs: np.ndarray) -> list[float] | None:
+    """min ||R3 phi - c|| s.t. rows phi <= rhs, lo <= phi <= hi: solvers._rmse_lsi's LSI -> LDP -> NNLS on R3.
+
+    None where the reference would take another branch (its ridge for near rank deficiency) or the
+    constraints are inconsistent.
+    """
+    (r00, r01, r02, c0), (_, r11, r12, c1), (_, _, r22, c2) = r[0], r[1], r[2]
+    r3 = np.array(((r00, r01, r02), (0.0, r11, r12), (0.0, 0.0, r22)))
+    _, sv, _, info = lapack.dgesdd(r3, compute_uv=0)
+    if info != 0 or sv[2] < 2e-7 * sv[0]:  # the reference adds a ridge below 1e-7: leave it these windows
+        return None
+    r_inv = np.linalg.inv(r3)
+    c = np.array((c0, c1, c2))
+    phi_ls = r_inv @ c
+    g = np.vstack((_BOUND_ROWS, rows))
+    h = np.concatenate((hi, [-b for b in lo], rhs))
+    slack = h - g @ phi_ls
+    if (slack >= 0.0).all():
+        return phi_ls.tolist()
+    e = g @ r_inv
+    norm = np.maximum(np.sqrt((e * e).sum(axis=1)), 1e-300)
+    m = np.empty((4, len(slack)))
+    m[:3] = e.T
+    m[:3] /= -norm
+    m[3] = slack
+    m[3] /= -norm
+    u, _ = nnls(m, _TARGET, maxiter=50 * (len(slack) + 4))
+    resid = m @ u - _TARGET
+    if abs(resid[3]) < 1e-12 or np.linalg.norm(resid) < 1e-12:
+        return None
+    z = -resid[:3] / resid[3]
+    return (r_inv @ (z + c)).tolist()
