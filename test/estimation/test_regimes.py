@@ -169,6 +169,43 @@ def test_classify_regimes_is_the_node_message_for_message():
     assert classify_regimes(effort[:10], accel[:10], speed=speed[:10]).tolist() == whole[:10].tolist()
 
 
+def _per_sample(effort, accel, speed=None, known=None, force=None) -> list[int]:
+    c = RegimeClassifier()
+    return [
+        c.classify(effort[i], accel[i], None if speed is None else speed[i],
+                   effort_known=None if known is None else bool(known[i]),
+                   opposing_force=None if force is None else force[i])
+        for i in range(len(effort))
+    ]  # fmt: skip
+
+
+@pytest.mark.parametrize("inputs", ["plain", "speed", "speed+known", "speed+known+force", "known+force", "force"])
+def test_classify_regimes_batch_equals_the_classifier_on_adversarial_runs(inputs):
+    """The array call (regimes_batch: the filter arranged for numpy) labels every sample as per-sample calls do,
+    on runs with exact zeros, NaN, infinities, standstills, known flags and non-finite opposing forces."""
+    rng = np.random.default_rng(11)
+    for _ in range(40):
+        n = int(rng.integers(1, 300))
+        effort, accel = rng.normal(0.0, 0.3, n), rng.normal(0.0, 0.3, n)
+        effort[rng.random(n) < 0.2] = 0.0
+        speed = rng.uniform(-1.0, 40.0, n)
+        for x in (effort, accel, speed):
+            x[rng.random(n) < 0.03] = np.nan
+        effort[rng.random(n) < 0.01] = np.inf
+        accel[rng.random(n) < 0.01] = -np.inf
+        known = rng.random(n) < 0.5
+        force = rng.normal(0.02, 0.05, n)
+        force[rng.random(n) < 0.05] = np.nan
+        force[rng.random(n) < 0.02] = np.inf
+        kw = {
+            "speed": speed if "speed" in inputs else None,
+            "known": known if "known" in inputs else None,
+            "force": force if "force" in inputs else None,
+        }
+        whole = classify_regimes(effort, accel, speed=kw["speed"], effort_known=kw["known"], opposing_force=kw["force"])
+        assert whole.tolist() == _per_sample(effort, accel, **kw)
+
+
 def test_config_is_checked():
     with pytest.raises(ConfigError, match="brake_decel_max"):
         RegimeConfig(brake_decel_min=0.5, brake_decel_max=0.4).validate()

@@ -247,30 +247,25 @@ def classify_regimes(
 ) -> np.ndarray:
     """``RegimeClassifier.classify`` over a sequence in time order: uint8 array of the broadcast shape.
 
-    ``rule``: vectorised. ``hmm``: one classifier run over the (flattened) samples in order, as the node
-    runs it, so the result is the node's message for message.
+    ``rule``: vectorised. ``hmm``: the classifier's filter over the (flattened) samples in order, as the node
+    runs it (:mod:`.regimes_batch`: the same operations arranged for numpy), so the result is the node's
+    message for message.
     """
     cfg = config if config is not None else RegimeConfig()
     e, a = np.broadcast_arrays(np.asarray(effort, dtype=float), np.asarray(acceleration, dtype=float))
     if cfg.method == "hmm":
-        n = e.size
-        none = [None] * n
+        from .regimes_batch import classify_hmm
 
         def flat(x, dtype):
-            return none if x is None else np.broadcast_to(np.asarray(x, dtype=dtype), e.shape).ravel().tolist()
+            return None if x is None else np.broadcast_to(np.asarray(x, dtype=dtype), e.shape).ravel()
 
-        clf = RegimeClassifier(cfg)
-        rows = zip(
-            e.ravel().tolist(),
-            a.ravel().tolist(),
+        out = classify_hmm(
+            e.ravel(),
+            a.ravel(),
+            RegimeClassifier(cfg),
             flat(speed, float),
             flat(effort_known, bool),
             flat(opposing_force, float),
-        )
-        out = np.fromiter(
-            (clf.classify(x, y, z, effort_known=k, opposing_force=w) for x, y, z, k, w in rows),
-            dtype=np.uint8,
-            count=n,
         )
         return out.reshape(e.shape)
     coast = np.abs(e) <= cfg.effort_tolerance
