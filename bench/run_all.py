@@ -21,9 +21,11 @@ from __future__ import annotations
 import argparse
 import datetime as dt
 import json
+import math
 import os
 import platform
 import signal
+import statistics
 import subprocess
 import sys
 import threading
@@ -103,6 +105,8 @@ class Outcome:
     load_before: float
     load_after: float
     command: list[str]
+    probe_before: float = math.nan
+    probe_after: float = math.nan
     data: dict[str, Any] = field(default_factory=dict)
     error_tail: str = ""
 
@@ -174,6 +178,23 @@ def bench_env() -> dict[str, str]:
     return env
 
 
+def speed_probe(repeats: int = 9) -> float:
+    """The machine's speed now: median ms of a fixed pure-Python workload (interpreter work, as the core's hot paths).
+
+    On this shared VM it is bimodal at a load average near 0 -- about 15 ms or about 25 ms, switching at random
+    within minutes (the host's other tenants) -- and every absolute time of a benchmark moves with it (measured:
+    estimate_run, paper preset, 1 Hz: 26 ms in the fast state, 43 ms in the slow one).
+    """
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        x = 0.0
+        for i in range(200_000):
+            x += (i % 7) * 0.5
+        times.append(time.perf_counter() - t0)
+    return statistics.median(times) * 1e3
+
+
 def run_bench(b: Bench, quick: bool) -> Outcome:
     """Run one benchmark script in a subprocess (own session, killed as a group on time-out)."""
     json_path = OUT / b.json_name
@@ -183,6 +204,7 @@ def run_bench(b: Bench, quick: bool) -> Outcome:
         cmd += ["--json", str(json_path)]
     log_path = OUT / f"{b.name}.log"
     err_path = OUT / f"{b.name}.stderr.log"
+    probe0 = speed_probe()
     load0, t0 = os.getloadavg()[0], time.monotonic()
     with open(log_path, "w", encoding="utf-8") as log, open(err_path, "w", encoding="utf-8") as err:
         proc = subprocess.Popen(cmd, cwd=REPO, env=bench_env(), stdout=subprocess.PIPE, stderr=err, text=True,
@@ -210,7 +232,7 @@ def run_bench(b: Bench, quick: bool) -> Outcome:
             status = f"timeout after {b.timeout_s:.0f} s"
         reader.join(timeout=5)
     seconds = time.monotonic() - t0
-    out = Outcome(b, status, seconds, load0, os.getloadavg()[0], cmd)
+    out = Outcome(b, status, seconds, load0, os.getloadavg()[0], cmd, probe0, speed_probe())
     if status == "ok":
         try:
             out.data = json.loads(json_path.read_text(encoding="utf-8"))
@@ -254,24 +276,28 @@ def render(outcomes: list[Outcome], info: dict[str, str], started: str, quick: b
         "before and after each benchmark is given; a load near 1 means one of the two cores was busy elsewhere).",
         "Each ratio compares systems measured in the same process run, on the same inputs, alternating or back to",
         "back, so the ratios are robust to that load; absolute times are not, and a target on an absolute time that",
-        "is met only narrowly may flip between runs.",
+        "is met only narrowly may flip between runs. The machine's speed itself varies too, at a load average near 0:",
+        "the *speed probe* column is the median time of a fixed pure-Python workload (`run_all.speed_probe`) just",
+        "before and after each benchmark, about 15 ms in this VM's fast state and 25 ms in its slow one (the host's",
+        "other tenants; it switches at random within minutes); absolute times scale with it (up to 1.7x).",
         "",
         f"**Targets met: {met} of {len(judged)}.**",
         "",
-        "| benchmark | status | time | load before -> after | targets met |",
-        "|---|---|---:|---|---:|",
+        "| benchmark | status | time | load before -> after | speed probe before -> after | targets met |",
+        "|---|---|---:|---|---|---:|",
     ]
     for o in outcomes:
         rows = o.data.get("summary", [])
         j = [r for r in rows if r.get("met") is not None]
         lines.append(
             f"| {o.bench.title} | {o.status} | {o.seconds:.0f} s | {o.load_before:.2f} -> {o.load_after:.2f} | "
-            f"{sum(1 for r in j if r['met'])} of {len(j)} |"
+            f"{o.probe_before:.1f} -> {o.probe_after:.1f} ms | {sum(1 for r in j if r['met'])} of {len(j)} |"
         )
     for o in outcomes:
         lines += ["", f"## {o.bench.title}", "", o.bench.about, ""]
         lines.append(f"`{' '.join(_short(c) for c in o.command)}` ({o.status}, {o.seconds:.0f} s, load "
-                     f"{o.load_before:.2f} -> {o.load_after:.2f})")  # fmt: skip
+                     f"{o.load_before:.2f} -> {o.load_after:.2f}, speed probe {o.probe_before:.1f} -> "
+                     f"{o.probe_after:.1f} ms)")  # fmt: skip
         lines.append("")
         if o.status != "ok":
             lines += ["```", o.error_tail or "(no error output)", "```"]
