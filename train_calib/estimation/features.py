@@ -197,23 +197,29 @@ def _break_time(pts: list, lo: float, hi: float) -> float | None:
 
 
 def _best_break(t: np.ndarray, v: np.ndarray, grid: np.ndarray) -> float | None:
-    """The break in ``grid`` with the least residual sum of squares (basis 1, min(t - tau, 0), max(t - tau, 0))."""
+    """The break in ``grid`` with the least residual sum of squares (basis 1, min(t - tau, 0), max(t - tau, 0)).
+
+    The two hinge columns never overlap (min(d, 0) max(d, 0) = 0), so the normal matrix is
+    [[n, a, b], [a, c, 0], [b, 0, e]] and its solution has a closed form, for every grid point at once.
+    """
     d = t[None, :] - grid[:, None]
     x1, x2 = np.minimum(d, 0.0), np.maximum(d, 0.0)
-    g = np.empty((grid.size, 3, 3))
-    g[:, 0, 0] = t.size
-    g[:, 0, 1] = g[:, 1, 0] = x1.sum(axis=1)
-    g[:, 0, 2] = g[:, 2, 0] = x2.sum(axis=1)
-    g[:, 1, 1] = (x1 * x1).sum(axis=1)
-    g[:, 1, 2] = g[:, 2, 1] = (x1 * x2).sum(axis=1)
-    g[:, 2, 2] = (x2 * x2).sum(axis=1)
-    b = np.stack([np.full(grid.size, v.sum()), x1 @ v, x2 @ v], axis=1)
+    n = float(t.size)
+    a, b = x1.sum(axis=1), x2.sum(axis=1)
+    c, e = (x1 * x1).sum(axis=1), (x2 * x2).sum(axis=1)
+    b0, b1, b2 = float(v.sum()), x1 @ v, x2 @ v
     ok = ((d < 0.0).sum(axis=1) >= 2) & ((d > 0.0).sum(axis=1) >= 2)
-    ok &= np.abs(np.linalg.det(g)) > 1e-12 * np.abs(g).max(axis=(1, 2)) ** 3
+    det = n * c * e - a * a * e - b * b * c
+    scale = np.maximum(np.maximum(np.maximum(np.abs(a), np.abs(b)), np.maximum(c, e)), n)
+    ok &= np.abs(det) > 1e-12 * scale**3
     if not ok.any():
         return None
-    coef = np.linalg.solve(g[ok], b[ok][..., None])[..., 0]
-    rss = float(v @ v) - (coef * b[ok]).sum(axis=1)
+    a, b, c, e, b1, b2, det = a[ok], b[ok], c[ok], e[ok], b1[ok], b2[ok], det[ok]
+    # Cramer's rule on the normal equations (c, e > 0 where two samples lie on each side)
+    beta0 = (b0 * c * e - a * b1 * e - b * b2 * c) / det
+    beta1 = (b1 - a * beta0) / c
+    beta2 = (b2 - b * beta0) / e
+    rss = float(v @ v) - (beta0 * b0 + beta1 * b1 + beta2 * b2)
     return float(grid[ok][int(np.argmin(rss))])
 
 
@@ -656,9 +662,8 @@ def extract_features(
         raise ValueError(f"regimes: expected shape ({n},), found {regimes.shape}")
     if n and np.any(estimates.run_id != estimates.run_id[0]):
         raise ValueError("estimates: several run_ids; use features_per_run()")
-    acc = FeatureAccumulator(cfg)
     if n == 0:
-        return acc.snapshot(run_complete)
+        return FeatureAccumulator(cfg).snapshot(run_complete)
     t = estimates.stamp_ns * 1e-9
     s, v = estimates.s, estimates.v
     f = Features(stamp_ns=int(estimates.stamp_ns[-1]), run_id=int(estimates.run_id[0]), run_complete=run_complete)
@@ -696,7 +701,8 @@ def extract_features(
     f.brake_step_high = np.append(edges[1:], np.inf)
     br = pos & (reg == BRAKING)
     first_t = np.full(n - 1, np.inf)
-    for a, b in _runs(reg):
+    phases = _runs(reg)
+    for a, b in phases:
         if reg[a] == BRAKING:
             first_t[a:b] = t[a + 1]
     w = cfg.brake_window
@@ -716,7 +722,6 @@ def extract_features(
     shares = np.bincount(reg[pos], weights=dt[pos], minlength=5)
     f.regime_time_share = shares / total if total > 0.0 else np.zeros(5)
     # phases (loop over phases, not samples)
-    phases = _runs(reg)
     cruise = []
     t_step0, t_step1 = t[:-1], t[1:]
     for a, b in phases:
