@@ -14,6 +14,7 @@ on each regime change, and once with ``run_complete`` when the run ends (next ru
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -49,6 +50,7 @@ class RegimeRecord:
     v: float
     effort: float
     acceleration: float
+    v_measured: float = math.nan  # the speed measurement, m/s
 
 
 def classify_estimate(classifier: RegimeClassifier, estimate: Any) -> int:
@@ -176,7 +178,7 @@ class Pipeline:
             return
         out.estimates.append(e)
         regime = classify_estimate(self.classifier, e)
-        out.regimes.append(RegimeRecord(e.stamp_ns, e.run_id, regime, e.s, e.v, e.effort, e.acceleration))
+        out.regimes.append(RegimeRecord(e.stamp_ns, e.run_id, regime, e.s, e.v, e.effort, e.acceleration, e.v_measured))
         out.features += self.features.update(e, regime)
         self._window(m, regime)
 

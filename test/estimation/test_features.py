@@ -136,14 +136,15 @@ def test_features_of_the_estimate_against_truth(period):
         assert np.all(np.abs(f.brake_rate_mean - f_true.brake_rate_mean)[both] < 0.05)
         assert abs(f.cruise_speed - f_true.cruise_speed) < 2 * KMH
         assert abs(f.max_tractive_power - f_true.max_tractive_power) < 0.1 * f_true.max_tractive_power
-        # final phases against the script's exact phases: within one sample period at 10 s (measured over six seeds:
-        # coast +1.2..+7.3 s, brake -4.2..-2.2 s); at 1 Hz the filtered speed, which follows the coasting model
-        # while u = 0 is taken as known, turns a few seconds late into the brake (coast +1.3..+5.4, brake -2.7..+4.5)
+        # final phases against the script's exact phases, the changes located on the measured speeds (v_measured;
+        # measured over six seeds): at 10 s coast +0.7..+7.2 s, brake -3.9..0.0 s; at 1 Hz coast -0.6..+3.8 s, brake
+        # -1.0..+5.4 s (seed 1: the 1 km/h speed flickers to 0.28 m/s at the standstill and re-opens the brake for
+        # 7 s). On the filtered speeds, which lag the brake onset, 1 Hz gave coast +1.3..+5.4, brake -2.7..+4.5.
         t, reg = dense["t"], dense["regime"]
         coast_start, brake_start = t[reg == COASTING][0], t[reg == BRAKING][0]
         stop = t[(reg == UNKNOWN) & (t > brake_start)][0]
-        assert abs(f.final_coast_duration - (brake_start - coast_start)) <= max(period, 6.5)
-        assert abs(f.final_brake_duration - (stop - brake_start)) <= max(period, 5.0)
+        assert abs(f.final_coast_duration - (brake_start - coast_start)) <= max(period, 6.5 if period > 5 else 4.5)
+        assert abs(f.final_brake_duration - (stop - brake_start)) <= max(period, 6.0)
 
 
 def test_no_data_gives_nan_and_zero_counts():

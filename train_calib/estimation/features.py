@@ -129,7 +129,7 @@ class _Change:
 
     def __init__(self, kind: str, t_prev: float, t_first: float, pts: list, cfg: FeatureConfig) -> None:
         self.kind, self.t_prev, self.t_first = kind, t_prev, t_first
-        self.pts = pts  # (t, s, v, acceleration) of the moving samples around the change
+        self.pts = pts  # (t, s, v_fit, acceleration, v) of the moving samples around the change (features.fit_speed)
         self.lo = t_first - max(cfg.boundary_search, 2.0 * (t_first - t_prev))
         self.until = t_first + max(cfg.boundary_window, 3.0 * (t_first - t_prev))
         self.closed = kind == "stop"
@@ -138,9 +138,9 @@ class _Change:
         self._time: float | None = None
         self._memo: tuple[int, bool, float] | None = None  # (len(pts), refine, time): pts only grow by appending
 
-    def add(self, t: float, s: float, v: float, a: float) -> None:
+    def add(self, t: float, s: float, v_fit: float, a: float, v: float) -> None:
         if t <= self.until:
-            self.pts.append((t, s, v, a))
+            self.pts.append((t, s, v_fit, a, v))
         else:
             self.closed = True
 
@@ -226,18 +226,33 @@ def _best_break(t: np.ndarray, v: np.ndarray, grid: np.ndarray) -> float | None:
 def _stop_time(pts: list, t_prev: float, t_first: float, standstill: float) -> float:
     """Where the speed of the braking reaches zero: the line through its last (up to four) moving samples, or through
     the last one with its published acceleration; no earlier than the last moving sample and no later than t_first
-    plus the time to brake the standstill speed away (the first "standing" sample may still be rolling)."""
+    plus the time to brake the standstill speed away (the first "standing" sample may still be rolling).
+
+    On the filtered speeds (p[4]): "moving" is decided on them, and near the stop the measured ones of the last
+    moving samples may already be the standstill's noise."""
     last = [p for p in pts if p[0] <= t_prev][-4:]
     if not last:
         return 0.5 * (t_prev + t_first)
-    t_last, v_last = last[-1][0], last[-1][2]
+    t_last, v_last = last[-1][0], last[-1][4]
     if len(last) >= 2:
-        slope = float(np.polyfit([p[0] - t_last for p in last], [p[2] for p in last], 1)[0])
+        slope = float(np.polyfit([p[0] - t_last for p in last], [p[4] for p in last], 1)[0])
     else:
         slope = float(last[-1][3])
     if not slope < 0.0:
         return 0.5 * (t_prev + t_first)
     return min(max(t_last - v_last / slope, t_last), t_first - standstill / slope)
+
+
+def fit_speed(v: float, v_measured: float) -> float:
+    """The speed phase changes are located on: the measurement where there is one (finite, >= 0), else the
+    filtered speed, m/s. The filter lags a strong onset (a brake application) by a sample or two at 1 Hz, which
+    placed the end of a coast 1-3 s late; the measured profile is unbiased (docs/estimator.md)."""
+    return v_measured if v_measured >= 0.0 and v_measured < math.inf else v
+
+
+def fit_speeds(v: np.ndarray, v_measured: np.ndarray) -> np.ndarray:
+    """``fit_speed`` over arrays."""
+    return np.where((v_measured >= 0.0) & (v_measured < np.inf), v_measured, v)
 
 
 class _Phase:
@@ -358,7 +373,7 @@ class _FinalPhases:
         self._hold_window = cfg.hold_check_window
         self._min_coast = cfg.final_coast_min_duration - 1e-9
         self._min_brake = cfg.final_brake_min_duration - 1e-9
-        self._hist: deque[tuple[float, ...]] = deque()  # (t, s, v, acceleration) of the recent moving samples
+        self._hist: deque[tuple[float, ...]] = deque()  # (t, s, v_fit, acceleration, v) of the recent moving samples
         self._open: list[_Change] = []  # changes still collecting the samples after them
         self._last: dict[int, _Phase | None] = {COASTING: None, BRAKING: None}
         self.final: dict[int, _Phase | None] = {COASTING: None, BRAKING: None}
@@ -377,9 +392,11 @@ class _FinalPhases:
         dt: float,
         accel: float,
         w: float,
+        v_fit: float,
     ) -> None:
         """One step (t_prev, t] labelled r (UNKNOWN when standing) after one labelled r_prev; accel: its published
-        acceleration; w = r + g (effort - acceleration; NaN where the effort is a known zero)."""
+        acceleration; w = r + g (effort - acceleration; NaN where the effort is a known zero); v: the filtered
+        speed (moving or not), v_fit: the speed the changes are located on (``fit_speed``)."""
         if dt > 0.0 and math.isfinite(accel):
             self._u += accel * dt
         moving = v >= self._standstill
@@ -426,10 +443,10 @@ class _FinalPhases:
                     self._coasts = [*self._coasts[-2:], ph]
         hist = self._hist
         if moving:
-            hist.append((t, s, v, accel))
+            hist.append((t, s, v_fit, accel, v))
             if self._open:
                 for ch in self._open:
-                    ch.add(t, s, v, accel)
+                    ch.add(t, s, v_fit, accel, v)
                 self._open = [ch for ch in self._open if not ch.closed]
         t_old = t - self._span - 5.0 * max(dt, 0.0)
         while hist and hist[0][0] < t_old:
@@ -457,10 +474,10 @@ class _FinalPhases:
         brake = self._last[BRAKING]
         return r == COASTING and ph is not None and brake is not None and brake.last_t > ph.last_t
 
-    def first(self, t: float, s: float, v: float) -> None:
-        """The first sample of the run."""
+    def first(self, t: float, s: float, v: float, v_fit: float) -> None:
+        """The first sample of the run (v filtered, v_fit as in ``step``)."""
         if v >= self.cfg.standstill_speed:
-            self._hist.append((t, s, v, 0.0))
+            self._hist.append((t, s, v_fit, 0.0, v))
 
     def result(self, regime: int) -> tuple[float, float]:
         """(duration s, distance m) of the final COASTING or BRAKING phase so far; NaN when there is none.
@@ -538,17 +555,22 @@ class FeatureAccumulator:
 
     def update(self, sample: EstimateSample, regime: int) -> bool:
         """Add one estimate with its regime; True when the regime changed (publish the features)."""
+        v = float(sample.v)
         return self._add(
             int(sample.stamp_ns),
             int(sample.run_id),
             float(sample.s),
-            float(sample.v),
+            v,
             float(sample.effort),
             float(sample.acceleration),
             int(regime),
+            fit_speed(v, float(getattr(sample, "v_measured", _NAN))),
         )
 
-    def _add(self, stamp: int, run_id: int, s: float, v: float, effort: float, accel: float, regime: int) -> bool:
+    def _add(
+        self, stamp: int, run_id: int, s: float, v: float, effort: float, accel: float, regime: int, v_fit: float
+    ) -> bool:
+        """v: filtered speed; v_fit: the speed the phase changes are located on (fit_speed), m/s."""
         cfg = self.config
         t = stamp * 1e-9
         if run_id != self._run_id:
@@ -556,7 +578,7 @@ class FeatureAccumulator:
             self._run_id = run_id
             self._stamp, self._t0, self._t, self._s0, self._s, self._v = stamp, t, t, s, s, v
             self._regime = regime if v >= cfg.standstill_speed else UNKNOWN
-            self._final.first(t, s, v)
+            self._final.first(t, s, v, v_fit)
             return True
         dt = t - self._t
         t_prev, s_prev = self._t, self._s
@@ -592,7 +614,7 @@ class FeatureAccumulator:
         elif self._regime == CRUISING:
             self._close_cruise(t_prev)
         w = effort - accel if effort != 0.0 else _NAN
-        self._final.step(t_prev, s_prev, self._regime, t, s, v, regime, dt, accel, w)
+        self._final.step(t_prev, s_prev, self._regime, t, s, v, regime, dt, accel, w, v_fit)
         changed = regime != self._regime
         self._stamp, self._t, self._s, self._v, self._regime = stamp, t, s, v, regime
         return changed
@@ -734,13 +756,14 @@ def extract_features(
     # final coast and brake: the per-step tracker of the accumulator (phase changes located on the speed)
     final = _FinalPhases(cfg)
     tl, sl, vl, rl = t.tolist(), s.tolist(), v.tolist(), reg.tolist()
+    fl = fit_speeds(v, estimates.v_measured).tolist()
     dtl = dt.tolist()
     al = estimates.acceleration.tolist()
     wl = np.where(estimates.effort != 0.0, estimates.effort - estimates.acceleration, np.nan).tolist()
-    final.first(tl[0], sl[0], vl[0])
+    final.first(tl[0], sl[0], vl[0], fl[0])
     r_prev = int(first)
     for k in range(1, n):
-        final.step(tl[k - 1], sl[k - 1], r_prev, tl[k], sl[k], vl[k], rl[k - 1], dtl[k - 1], al[k], wl[k])
+        final.step(tl[k - 1], sl[k - 1], r_prev, tl[k], sl[k], vl[k], rl[k - 1], dtl[k - 1], al[k], wl[k], fl[k])
         r_prev = rl[k - 1]
     f.final_coast_duration, f.final_coast_distance = final.result(COASTING)
     f.final_brake_duration, f.final_brake_distance = final.result(BRAKING)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, fields
 
 import numpy as np
@@ -41,6 +42,7 @@ class EstimateSample:
     health: int  # HEALTH_*
     dt: float = 0.0  # s since the previous sample of the run (0 for the first)
     input_effort: float = 0.0  # u fed to the process model (the paper's two-point effort when not known), N/kg
+    v_measured: float = math.nan  # the speed measurement of this update, m/s (features locate phase changes on it)
 
     @property
     def davis(self) -> Davis:
@@ -73,6 +75,7 @@ class EstimateSeries:
     dt: np.ndarray
     input_effort: np.ndarray
     decoupled: np.ndarray  # bool: the step's process used the mean resistance (decouple_unknown_effort)
+    v_measured: np.ndarray  # the speed measurements, m/s (NaN where unknown)
 
     @classmethod
     def empty(cls, n: int) -> EstimateSeries:
@@ -86,6 +89,8 @@ class EstimateSeries:
                 data[f.name] = np.zeros(n, dtype=np.int64 if f.name != "health" else np.uint8)
             elif f.name in bools:
                 data[f.name] = np.zeros(n, dtype=bool)
+            elif f.name == "v_measured":
+                data[f.name] = np.full(n, np.nan)
             else:
                 data[f.name] = np.zeros(n)
         return cls(**data)

@@ -60,6 +60,7 @@ def estimate_run(
         out.health[:] = table[:, 11]
         out.dt[:], out.input_effort[:] = table[:, 12], table[:, 13]
         out.decoupled[:] = table[:, 14] != 0.0
+        out.v_measured[:] = series.v
         out.covariance[:] = packed[:, UPPER_INDEX]
     return out
 

@@ -264,6 +264,7 @@ class ResistanceEstimator:
             health=health,
             dt=dt,
             input_effort=u_in,
+            v_measured=float(m.v),
         )
 
     # -- internals ------------------------------------------------------------------------------

@@ -12,6 +12,7 @@ serialized messages are identical.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Any
 
@@ -129,6 +130,7 @@ def estimate_to_msg(e: EstimateSample, frame_id: str = "") -> ResistanceEstimate
     msg._nis = float(e.nis)
     msg._effort_known = bool(e.effort_known)
     msg._health = int(e.health)
+    msg._v_measured = float(e.v_measured)
     return msg
 
 
@@ -150,12 +152,14 @@ class RegimeInput:
     effort_known: bool | None = None  # effort taken as known (coasting u = 0, or measured traction power)
     resistance: float | None = None  # r(v) at the filtered speed, N/kg
     track_force: float | None = None  # g(s), N/kg
+    v_measured: float = math.nan  # the speed measurement, m/s (NaN: a message recorded without it)
 
 
 def regime_input_from_msg(msg: Any) -> RegimeInput:
     """From a ResistanceEstimate (with effort_known, resistance, track_force) or a DrivingRegime (rclpy or rosbags)."""
     stamp = msg.header.stamp
     t_ns = int(stamp.sec) * NS + int(stamp.nanosec)
+    v_measured = float(getattr(msg, "v_measured", math.nan))  # bags recorded before the field: NaN
     if hasattr(msg, "resistance"):  # a ResistanceEstimate
         return RegimeInput(
             t_ns,
@@ -167,8 +171,12 @@ def regime_input_from_msg(msg: Any) -> RegimeInput:
             bool(msg.effort_known),
             float(msg.resistance),
             float(msg.track_force),
+            v_measured,
         )
-    return RegimeInput(t_ns, int(msg.run_id), float(msg.s), float(msg.v), float(msg.effort), float(msg.acceleration))
+    return RegimeInput(
+        t_ns, int(msg.run_id), float(msg.s), float(msg.v), float(msg.effort), float(msg.acceleration),
+        v_measured=v_measured,
+    )  # fmt: skip
 
 
 # -- DrivingRegime ----------------------------------------------------------------------------------
@@ -184,6 +192,7 @@ def regime_to_msg(sample: RegimeInput | EstimateSample, regime: int, frame_id: s
     msg._v = float(sample.v)
     msg._effort = float(sample.effort)
     msg._acceleration = float(sample.acceleration)
+    msg._v_measured = float(sample.v_measured)
     return msg
 
 
