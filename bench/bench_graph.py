@@ -106,9 +106,11 @@ def relay_schedule(bag: Path, track, train, window: bool) -> dict:
 
 
 class RelayNode(Node):
-    """A bare rclpy node: on each trigger input it publishes the next prebuilt messages; counters for the replay."""
+    """A bare rclpy node: on each trigger input it publishes the next prebuilt messages; counters for the replay.
+    ``raw``: its subscriptions take the serialized bytes and it publishes the messages serialized beforehand, so
+    it converts no message at all (the middleware's own cost)."""
 
-    def __init__(self, context, name, inputs, trigger, output, plan, final, sensor):
+    def __init__(self, context, name, inputs, trigger, output, plan, final, sensor, raw=False):
         from rclpy.parameter import Parameter
 
         # as the real nodes in a replay: sim time (a /clock subscription each)
@@ -119,6 +121,11 @@ class RelayNode(Node):
         self.pending = 0
         self.ended = False
         self.diagnostics_published = 0
+        if raw:
+            from rclpy.serialization import serialize_message
+
+            plan = [[serialize_message(m) for m in msgs] for msgs in plan]
+            final = [serialize_message(m) for m in final]
         self._plan, self._final, self._k = plan, final, 0
         msg_type, self._topic = output
         self._pub = self.create_publisher(
@@ -128,9 +135,12 @@ class RelayNode(Node):
         qos = QoSProfile(depth=100 if sensor else 1000, reliability=reliability)
         for topic, cls in inputs:
             relay = trigger is None or topic == trigger
-            callback = (lambda msg, topic=topic: self._relay(topic)) if relay else (
-                lambda msg, topic=topic: self._count(topic))
-            self.create_subscription(cls, topic, callback, qos)
+            callback = (
+                (lambda msg, topic=topic: self._relay(topic))
+                if relay
+                else (lambda msg, topic=topic: self._count(topic))
+            )
+            self.create_subscription(cls, topic, callback, qos, raw=raw)
 
     def _count(self, topic):
         self.handled[topic] += 1
@@ -159,7 +169,7 @@ class RelayNode(Node):
 class RelayGraph(InProcessGraph):
     """The relay chain behind the same Graph view the replay uses for the real nodes (same names, same hops)."""
 
-    def __init__(self, context, schedule, names):
+    def __init__(self, context, schedule, names, raw=False):
         from geometry_msgs.msg import TwistStamped
         from sensor_msgs.msg import NavSatFix
         from train_calib_msgs.msg import (
@@ -186,7 +196,7 @@ class RelayGraph(InProcessGraph):
             inputs, trigger, output = hops[name]
             plan, final = schedule[name]
             self.nodes[name] = RelayNode(
-                context, f"relay_{name}", inputs, trigger, output, plan, final, name == "gnss_speed_node"
+                context, f"relay_{name}", inputs, trigger, output, plan, final, name == "gnss_speed_node", raw
             )
 
 
@@ -194,10 +204,17 @@ class RelayGraph(InProcessGraph):
 
 
 def throughput(
-    bag: Path, track_path: Path, train_path: Path, executor: str, window: bool, schedule: dict | None = None
+    bag: Path,
+    track_path: Path,
+    train_path: Path,
+    executor: str,
+    window: bool,
+    schedule: dict | None = None,
+    raw: bool = False,
 ) -> dict:
-    """One replay at rate 0 of the real graph (schedule None) or of the relay chain; inputs per second of the
-    stream (first input published to the last handled) and per CPU second of this process."""
+    """One replay at rate 0 of the real graph (schedule None) or of the relay chain (`raw`: its subscriptions
+    take the serialized bytes, no message is deserialized); inputs per second of the stream (first input
+    published to the last handled) and per CPU second of this process."""
     out = Path(tempfile.mkdtemp(prefix="bench_graph_"))
     try:
         options = ReplayOptions(
@@ -205,7 +222,7 @@ def throughput(
         )
         if schedule is not None:
             options.graph_factory = lambda context, names, overrides, params_files: RelayGraph(
-                context, schedule, names
+                context, schedule, names, raw
             )
         result = replay(options)
         n_inputs = sum(result.sent.values())
@@ -226,11 +243,12 @@ def throughput(
 
 def compare(bag: Path, track_path: Path, train_path: Path, executor: str, window: bool, schedule: dict,
             repeat: int) -> dict:  # fmt: skip
-    """Graph and relay chain alternately, `repeat` times each; the best of each and their ratio."""
-    runs: dict[str, list] = {"graph": [], "relay": []}
+    """Graph, relay chain and raw relay chain alternately, `repeat` times each; the best of each and the ratios."""
+    runs: dict[str, list] = {"graph": [], "relay": [], "raw_relay": []}
     for _ in range(repeat):
         runs["graph"].append(throughput(bag, track_path, train_path, executor, window))
         runs["relay"].append(throughput(bag, track_path, train_path, executor, window, schedule))
+        runs["raw_relay"].append(throughput(bag, track_path, train_path, executor, window, schedule, raw=True))
     graph_rec, relay_rec = runs["graph"][0]["recorded"], runs["relay"][0]["recorded"]
     for topic in (MEASUREMENT, RESISTANCE, REGIME, FEATURES, WINDOW):  # the same messages through both
         assert graph_rec.get(topic, 0) == relay_rec.get(topic, 0), (topic, graph_rec, relay_rec)
@@ -245,24 +263,40 @@ def compare(bag: Path, track_path: Path, train_path: Path, executor: str, window
         "relay_inputs_per_s": best["relay"]["inputs_per_s"],
         "relay_speed_samples_per_s": best["relay"]["speed_samples_per_s"],
         "ratio": best["graph"]["inputs_per_s"] / best["relay"]["inputs_per_s"],
+        "raw_relay_speed_samples_per_s": best["raw_relay"]["speed_samples_per_s"],
+        "raw_ratio": best["graph"]["inputs_per_s"] / best["raw_relay"]["inputs_per_s"],
         "graph_inputs_per_cpu_s": cpu["graph"],
         "relay_inputs_per_cpu_s": cpu["relay"],
         "cpu_ratio": cpu["graph"] / cpu["relay"],
         "all_graph": [round(r["inputs_per_s"]) for r in runs["graph"]],
         "all_relay": [round(r["inputs_per_s"]) for r in runs["relay"]],
+        "all_raw_relay": [round(r["inputs_per_s"]) for r in runs["raw_relay"]],
         "recorded": graph_rec,
     }
 
 
 def node_costs(bag: Path, track_path: Path, train_path: Path, window: bool) -> dict:
     """One extra replay with every node callback, publish and /diagnostics timed (not used for the ratios): where
-    the nodes' own time goes, in microseconds per speed sample. ``work`` is a callback without its publishes (the
-    relay chain publishes the same messages)."""
+    the nodes' own time goes, in microseconds per speed sample. ``work`` is the decoding of the inputs and the
+    callbacks without their publishes (the relay chain publishes the same messages)."""
     from train_calib.nodes import common
 
     spent: Counter = Counter()
-    original = (common.TrainCalibNode._input, common.TrainCalibNode.publish, common.TrainCalibNode.publish_diagnostics)
+    original = (common.TrainCalibNode._input, common.TrainCalibNode.publish, common.TrainCalibNode.publish_diagnostics,
+                common.TrainCalibNode.input_decoder)  # fmt: skip
     perf = time.perf_counter
+    decoding = []  # the node whose input is being created (input_decoder is called inside _input)
+
+    def input_decoder(msg_type):
+        decode, name = original[3](msg_type), decoding[-1]
+
+        def timed_decode(data):
+            t0 = perf()
+            msg = decode(data)
+            spent[name, "callbacks"] += perf() - t0
+            return msg
+
+        return timed_decode
 
     def _input(self, msg_type, topic, callback, qos):
         name = self.get_name()
@@ -272,7 +306,11 @@ def node_costs(bag: Path, track_path: Path, train_path: Path, window: bool) -> d
             callback(msg)
             spent[name, "callbacks"] += perf() - t0
 
-        return original[0](self, msg_type, topic, timed_callback, qos)
+        decoding.append(name)
+        try:
+            return original[0](self, msg_type, topic, timed_callback, qos)
+        finally:
+            decoding.pop()
 
     def publish(self, topic, msg):
         t0 = perf()
@@ -286,12 +324,13 @@ def node_costs(bag: Path, track_path: Path, train_path: Path, window: bool) -> d
 
     common.TrainCalibNode._input, common.TrainCalibNode.publish = _input, publish
     common.TrainCalibNode.publish_diagnostics = publish_diagnostics
+    common.TrainCalibNode.input_decoder = staticmethod(input_decoder)
     try:
         r = throughput(bag, track_path, train_path, "events", window)
     finally:
-        common.TrainCalibNode._input, common.TrainCalibNode.publish, common.TrainCalibNode.publish_diagnostics = (
-            original
-        )
+        cls = common.TrainCalibNode
+        cls._input, cls.publish, cls.publish_diagnostics = original[:3]
+        cls.input_decoder = staticmethod(original[3])
     n = r["speed_samples"]
     per = {}
     for name in r["nodes"]:
@@ -402,7 +441,8 @@ def main() -> int:
             f"{r['relay_inputs_per_s']:6.0f} inputs/s = {100 * r['ratio']:.0f} % "
             f"(target >= {100 * TARGET_RATIO:.0f} %); {r['inputs']} inputs; all runs {r['all_graph']} / "
             f"{r['all_relay']}; per CPU second: graph {r['graph_inputs_per_cpu_s']:.0f}, relay "
-            f"{r['relay_inputs_per_cpu_s']:.0f} = {100 * r['cpu_ratio']:.0f} %",
+            f"{r['relay_inputs_per_cpu_s']:.0f} = {100 * r['cpu_ratio']:.0f} %; raw relay chain (no conversion) "
+            f"{r['raw_relay_speed_samples_per_s']:.0f} speed samples/s = {100 * r['raw_ratio']:.0f} %",
             flush=True,
         )
         results["summary"].append(
@@ -410,7 +450,9 @@ def main() -> int:
                 f"{r['graph_speed_samples_per_s']:.0f} samples/s", f">= {100 * TARGET_RATIO:.0f} % of the relay chain",
                 r["ratio"] >= TARGET_RATIO, f"bare relay chain {r['relay_speed_samples_per_s']:.0f} samples/s",
                 r["ratio"], f"{100 * r['ratio']:.0f} %",
-                note=f"{len(r['nodes'])} hops; per CPU second {100 * r['cpu_ratio']:.0f} %")
+                note=f"{len(r['nodes'])} hops; per CPU second {100 * r['cpu_ratio']:.0f} %; against the raw relay "
+                f"chain (bytes in and out, no message converted: the middleware's floor) "
+                f"{r['raw_relay_speed_samples_per_s']:.0f} samples/s, {100 * r['raw_ratio']:.0f} %")
         )  # fmt: skip
     costs = node_costs(args.bag, track_path, train_path, has_power)
     results["node_costs"] = costs
@@ -422,15 +464,20 @@ def main() -> int:
     main_case = results["throughput"].get("estimator chain (4 nodes), events")
     if main_case is not None:
         relay_us = 1e6 / main_case["relay_speed_samples_per_s"]
+        raw_us = 1e6 / main_case["raw_relay_speed_samples_per_s"]
         graph_us = 1e6 / main_case["graph_speed_samples_per_s"]
-        budget = relay_us / TARGET_RATIO - relay_us
         results["notes"] = [
-            f"Why the ratio: per speed sample (3 inputs) the bare chain costs {relay_us:.0f} us with the "
-            f"EventsExecutor - the middleware, the replay and the recorder, all in this process on one thread - and "
-            f"the four-node graph {graph_us:.0f} us: its nodes' own Python work adds {graph_us - relay_us:.0f} us "
-            f"per sample. The graph reaches {100 * TARGET_RATIO:.0f} % of the chain only if that work stays under "
-            f"{budget:.0f} us per sample. Timed per node in a separate run (callback without its publishes, which "
-            f"the chain makes too; {Path(args.bag).name}, whole graph): "
+            f"Why the ratio: per speed sample (3 inputs; 6 messages received and 3-4 published along the chain) the "
+            f"bare relay chain costs {relay_us:.0f} us with the EventsExecutor - the middleware, rclpy's conversion "
+            f"of every message received (deserialization) and published (serialization), the replay and the "
+            f"recorder, all in this process on one thread. As a raw chain (bytes in and out, no message converted) "
+            f"it costs {raw_us:.0f} us: rclpy's conversions are {relay_us - raw_us:.0f} us of it. The nodes "
+            f"subscribe raw and decode with precompiled CDR layouts into read-only views, and publish the chain's "
+            f"messages as bytes packed with the same layouts (train_calib/nodes/cdr.py: about 3 us a message "
+            f"instead of 25-50 us each way); the four-node graph costs {graph_us:.0f} us per sample, "
+            f"{graph_us - raw_us:.0f} us over the raw chain: the nodes' own Python work. Timed per node in a "
+            f"separate run (decoding and callback "
+            f"without its publishes, which the chain makes too; {Path(args.bag).name}, whole graph): "
             + ", ".join(f"{k} {v['work_us']:.0f} us" for k, v in per.items())
             + f", /diagnostics {sum(v['diagnostics_us'] for v in per.values()):.0f} us. The same work weighs less "
             f"against the SingleThreadedExecutor's slower chain (its Python wait-set rebuild per callback), hence its "

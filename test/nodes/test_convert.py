@@ -14,15 +14,19 @@ from rclpy.serialization import deserialize_message, serialize_message
 from std_msgs.msg import Header
 from train_calib_msgs.msg import DrivingRegime, ResistanceEstimate, TrackMeasurement
 
+from train_calib import bagio
 from train_calib.estimation.records import EstimateSample
 from train_calib.measurement import Measurement
 from train_calib.nodes.common import key_value
 from train_calib.nodes.convert import (
     RegimeInput,
+    estimate_to_cdr,
     estimate_to_msg,
     measurement_from_msg,
+    measurement_to_cdr,
     measurement_to_msg,
     regime_input_from_msg,
+    regime_to_cdr,
     regime_to_msg,
     time_msg,
 )
@@ -50,6 +54,27 @@ def _same(fast, reference):
     assert _fields(back) == _fields(deserialize_message(serialize_message(reference), type(reference)))
     # a message built fast behaves as any other (its field setters work)
     assert fast._check_fields == reference._check_fields
+
+
+def _plain(x):
+    """Field name -> value of an rclpy or a rosbags message (floats by their bits, arrays as lists)."""
+    if hasattr(x, "__dataclass_fields__") or hasattr(x, "get_fields_and_field_types"):
+        names = x.get_fields_and_field_types() if hasattr(x, "get_fields_and_field_types") else x.__dataclass_fields__
+        return {f: _plain(getattr(x, f)) for f in names if f != "__msgtype__" and not f.isupper()}  # no constants
+    if isinstance(x, np.ndarray):
+        return [_plain(v) for v in x.tolist()]
+    if isinstance(x, float):
+        return float(x).hex()
+    return int(x) if isinstance(x, (bool, np.bool_, int, np.integer)) else x
+
+
+def _same_cdr(data, msg):
+    """Bytes packed by a *_to_cdr writer are the message: same length as rclpy's serialization, read back equal by
+    rclpy and by rosbags (an independent CDR reader)."""
+    assert isinstance(data, bytes) and len(data) == len(serialize_message(msg))
+    assert _fields(deserialize_message(data, type(msg))) == _fields(msg)
+    typename = f"train_calib_msgs/msg/{type(msg).__name__}"
+    assert _plain(bagio.typestore().deserialize_cdr(data, typename)) == _plain(msg)
 
 
 def _values(msg):
@@ -94,6 +119,8 @@ def test_measurement_to_msg_is_the_constructed_message(m):
     )  # fmt: skip
     msg = measurement_to_msg(m, "line")
     _same(msg, reference)
+    _same_cdr(measurement_to_cdr(m, "line"), reference)
+    _same_cdr(measurement_to_cdr(m, "intercity_32km"), measurement_to_msg(m, "intercity_32km"))
     back = measurement_from_msg(msg)
     assert _fields(measurement_to_msg(back, "line")) == _fields(msg)
 
@@ -109,6 +136,8 @@ def test_estimate_to_msg_is_the_constructed_message():
     )  # fmt: skip
     msg = estimate_to_msg(e, "line")
     _same(msg, reference)
+    for frame in ("", "a", "ab", "abc", "line", "tunnel_line_37km"):
+        _same_cdr(estimate_to_cdr(e, frame), estimate_to_msg(e, frame))
     cov[0, 0] = 99.0
     assert msg.covariance[0] == 0.0
 
@@ -119,6 +148,7 @@ def test_regime_to_msg_and_back():
                               acceleration=-0.1, v_measured=6.1)  # fmt: skip
     msg = regime_to_msg(sample, np.int64(2), "x")
     _same(msg, reference)
+    _same_cdr(regime_to_cdr(sample, np.int64(2), "x"), reference)
     back = regime_input_from_msg(msg)
     assert back == RegimeInput(sample.stamp_ns, 1, 5.0, 6.0, 0.2, -0.1, v_measured=6.1)  # no resistance in it
 
@@ -141,3 +171,21 @@ def test_regime_input_from_an_estimate():
 def test_time_and_key_value():
     _same(time_msg(1_583_132_400_757_735_773), Time(sec=1_583_132_400, nanosec=757_735_773))
     _same(key_value("a key", "a value"), KeyValue(key="a key", value="a value"))
+
+
+@pytest.mark.parametrize("frame", ["", "abc", "tunnel_line_37km"])
+def test_window_to_cdr_is_the_message(frame):
+    from train_calib_msgs.msg import WindowResistance
+
+    from train_calib.nodes.window_calib_node import window_to_cdr, window_to_msg
+    from train_calib.window import WindowFit
+
+    fit = WindowFit(9 * NS + 7, np.int64(2), 30.0, 29, 1, 812.5, math.nan, 1.5e3, 4.2, 0.018, 2.9e-4, 3.1e-5,
+                    np.int64(3), np.bool_(True), 4.25)  # fmt: skip
+    reference = WindowResistance(
+        header=_header(fit.stamp_ns, frame), run_id=2, window_length=30.0, sample_count=29, gof_kind=1,
+        gof_value=812.5, a=math.nan, b=1.5e3, c=4.2, r0=0.018, r1=2.9e-4, r2=3.1e-5, regime=3, ill_posed=True,
+        speed_span=4.25,
+    )  # fmt: skip
+    assert _fields(window_to_msg(fit, frame)) == _fields(reference)
+    _same_cdr(window_to_cdr(fit, frame), reference)

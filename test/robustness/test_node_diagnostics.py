@@ -161,6 +161,7 @@ def test_gnss_speed_node_warns_on_a_silent_input_and_on_consecutive_drops_then_c
 
 def test_ukf_node_drops_unusable_measurements_with_a_reason_and_flags_resets(rclpy_context):
     from rclpy.parameter import Parameter
+    from rclpy.serialization import serialize_message
     from train_calib_msgs.msg import ResistanceEstimate, TrackMeasurement
 
     from train_calib.measurement import Measurement
@@ -202,6 +203,9 @@ def test_ukf_node_drops_unusable_measurements_with_a_reason_and_flags_resets(rcl
         measure(stamp_ns=t - 10 * NS)  # older than the last one
         measure(s_variance=math.inf, v_variance=-1.0)  # used, with the configured variances
         measure(power_valid=True, power_consumed=math.nan)
+        # a malformed message (serialized bytes cut short): dropped as an error, the node goes on
+        whole = serialize_message(measurement_to_msg(Measurement(t + NS, 1.0, 20.0, 0.01, 1.0), "frame"))
+        h.send("/train_calib/measurement", whole[:30])
         h.wait(lambda: len(h.received) >= 7)
         h.executor.spin_once(timeout_sec=0.2)
         assert len(h.received) == sent - 4  # no estimate for the four dropped
@@ -209,6 +213,7 @@ def test_ukf_node_drops_unusable_measurements_with_a_reason_and_flags_resets(rcl
         level, message, values = _status(node)
         drops = {k: v for k, v in values.items() if " dropped " in k or " repaired " in k}
         assert drops == {
+            "/train_calib/measurement dropped error": "1",
             "/train_calib/measurement dropped implausible": "1",
             "/train_calib/measurement dropped nan": "1",
             "/train_calib/measurement dropped negative_speed": "1",

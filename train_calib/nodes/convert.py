@@ -8,6 +8,10 @@ made with ``object.__new__`` and its slots (``_<field>``, the rosidl layout, che
 the same values the setters would store. Field checks (``ROS_PYTHON_CHECK_FIELDS=1``) are skipped here as they
 are for the setters by default; the values are converted to the field types exactly as before, so the
 serialized messages are identical.
+
+The nodes publish the chain's messages as bytes (``*_to_cdr``: the same values packed by :mod:`cdr`), which
+skips rclpy's per-field conversion of a message object; a test checks they deserialize to the ``*_to_msg``
+messages field for field.
 """
 
 from __future__ import annotations
@@ -24,6 +28,7 @@ from train_calib_msgs.msg import DrivingFeatures, DrivingRegime, ResistanceEstim
 from ..estimation.features import Features
 from ..estimation.records import EstimateSample
 from ..measurement import Measurement
+from . import cdr
 
 NS = 1_000_000_000
 
@@ -37,6 +42,9 @@ def _check_layout(cls: type) -> None:
 
 for _cls in (Time, Header, TrackMeasurement, ResistanceEstimate, DrivingRegime):
     _check_layout(_cls)
+_SLOTS = {cls: [f"_{name}" for name in cls.get_fields_and_field_types()][1:] for cls in
+          (TrackMeasurement, ResistanceEstimate, DrivingRegime)}  # fmt: skip
+_MEASUREMENT, _ESTIMATE, _REGIME = (cdr.layout(c) for c in (TrackMeasurement, ResistanceEstimate, DrivingRegime))
 
 _new = object.__new__
 _CHECK_FIELDS = Time()._check_fields  # what the generated constructors set (ROS_PYTHON_CHECK_FIELDS)
@@ -64,28 +72,51 @@ def header_msg(t_ns: int, frame_id: str) -> Header:
     return h
 
 
+def _message(cls: type, t_ns: int, frame_id: str, values: tuple) -> Any:
+    """A message of `cls` with this header and these values of the fields after it (lists for arrays)."""
+    msg = _new(cls)
+    msg._check_fields = _CHECK_FIELDS
+    msg._header = header_msg(t_ns, frame_id)
+    for slot, value in zip(_SLOTS[cls], values, strict=True):
+        setattr(msg, slot, np.array(value, dtype=_float64) if type(value) is list else value)
+    return msg
+
+
+def _cdr(layout: cdr.Layout, t_ns: int, frame_id: str, values: tuple) -> bytes:
+    t_ns = int(t_ns)
+    return layout.encode((t_ns // NS, t_ns % NS, frame_id, *values))
+
+
 # -- TrackMeasurement -------------------------------------------------------------------------------
 
 
+def _measurement_values(m: Measurement) -> tuple:
+    """The TrackMeasurement fields after the header, in message order and field types."""
+    return (
+        int(m.run_id),
+        float(m.s),
+        float(m.v),
+        float(m.track_force),
+        float(m.dt),
+        bool(m.s_measured),
+        float(m.s_variance),
+        float(m.v_variance),
+        float(m.cross_track),
+        float(m.speed_limit),
+        float(m.tunnel_fraction),
+        bool(m.power_valid),
+        float(m.power_consumed),
+        float(m.power_regenerated),
+    )
+
+
 def measurement_to_msg(m: Measurement, frame_id: str = "") -> TrackMeasurement:
-    msg = _new(TrackMeasurement)
-    msg._check_fields = _CHECK_FIELDS
-    msg._header = header_msg(m.stamp_ns, frame_id)
-    msg._run_id = int(m.run_id)
-    msg._s = float(m.s)
-    msg._v = float(m.v)
-    msg._track_force = float(m.track_force)
-    msg._dt = float(m.dt)
-    msg._s_measured = bool(m.s_measured)
-    msg._s_variance = float(m.s_variance)
-    msg._v_variance = float(m.v_variance)
-    msg._cross_track = float(m.cross_track)
-    msg._speed_limit = float(m.speed_limit)
-    msg._tunnel_fraction = float(m.tunnel_fraction)
-    msg._power_valid = bool(m.power_valid)
-    msg._power_consumed = float(m.power_consumed)
-    msg._power_regenerated = float(m.power_regenerated)
-    return msg
+    return _message(TrackMeasurement, m.stamp_ns, frame_id, _measurement_values(m))
+
+
+def measurement_to_cdr(m: Measurement, frame_id: str = "") -> bytes:
+    """The serialized TrackMeasurement (plain CDR, what rclpy would publish for measurement_to_msg)."""
+    return _cdr(_MEASUREMENT, m.stamp_ns, frame_id, _measurement_values(m))
 
 
 def measurement_from_msg(msg: Any) -> Measurement:
@@ -112,26 +143,35 @@ def measurement_from_msg(msg: Any) -> Measurement:
 # -- ResistanceEstimate -----------------------------------------------------------------------------
 
 
+def _estimate_values(e: EstimateSample) -> tuple:
+    """The ResistanceEstimate fields after the header (the covariance as a list of 25, row-major 5x5)."""
+    return (
+        int(e.run_id),
+        float(e.s),
+        float(e.v),
+        float(e.r0),
+        float(e.r1),
+        float(e.r2),
+        np.asarray(e.covariance, dtype=_float64).reshape(25).tolist(),
+        float(e.effort),
+        float(e.acceleration),
+        float(e.resistance),
+        float(e.track_force),
+        float(e.nis),
+        bool(e.effort_known),
+        int(e.health),
+        float(e.v_measured),
+    )
+
+
 def estimate_to_msg(e: EstimateSample, frame_id: str = "") -> ResistanceEstimate:
-    msg = _new(ResistanceEstimate)
-    msg._check_fields = _CHECK_FIELDS
-    msg._header = header_msg(e.stamp_ns, frame_id)
-    msg._run_id = int(e.run_id)
-    msg._s = float(e.s)
-    msg._v = float(e.v)
-    msg._r0 = float(e.r0)
-    msg._r1 = float(e.r1)
-    msg._r2 = float(e.r2)
-    msg._covariance = np.array(e.covariance, dtype=_float64).reshape(25)  # row-major 5x5, the message's own copy
-    msg._effort = float(e.effort)
-    msg._acceleration = float(e.acceleration)
-    msg._resistance = float(e.resistance)
-    msg._track_force = float(e.track_force)
-    msg._nis = float(e.nis)
-    msg._effort_known = bool(e.effort_known)
-    msg._health = int(e.health)
-    msg._v_measured = float(e.v_measured)
-    return msg
+    return _message(ResistanceEstimate, e.stamp_ns, frame_id, _estimate_values(e))
+
+
+def estimate_to_cdr(e: EstimateSample, frame_id: str = "") -> bytes:
+    """The serialized ResistanceEstimate (plain CDR, what rclpy would publish for estimate_to_msg)."""
+    run_id, s, v, r0, r1, r2, cov, *rest = _estimate_values(e)
+    return _cdr(_ESTIMATE, e.stamp_ns, frame_id, (run_id, s, v, r0, r1, r2, *cov, *rest))
 
 
 @dataclass(slots=True)
@@ -182,18 +222,26 @@ def regime_input_from_msg(msg: Any) -> RegimeInput:
 # -- DrivingRegime ----------------------------------------------------------------------------------
 
 
+def _regime_values(sample: RegimeInput | EstimateSample, regime: int) -> tuple:
+    """The DrivingRegime fields after the header."""
+    return (
+        int(sample.run_id),
+        int(regime),
+        float(sample.s),
+        float(sample.v),
+        float(sample.effort),
+        float(sample.acceleration),
+        float(sample.v_measured),
+    )
+
+
 def regime_to_msg(sample: RegimeInput | EstimateSample, regime: int, frame_id: str = "") -> DrivingRegime:
-    msg = _new(DrivingRegime)
-    msg._check_fields = _CHECK_FIELDS
-    msg._header = header_msg(sample.stamp_ns, frame_id)
-    msg._run_id = int(sample.run_id)
-    msg._regime = int(regime)
-    msg._s = float(sample.s)
-    msg._v = float(sample.v)
-    msg._effort = float(sample.effort)
-    msg._acceleration = float(sample.acceleration)
-    msg._v_measured = float(sample.v_measured)
-    return msg
+    return _message(DrivingRegime, sample.stamp_ns, frame_id, _regime_values(sample, regime))
+
+
+def regime_to_cdr(sample: RegimeInput | EstimateSample, regime: int, frame_id: str = "") -> bytes:
+    """The serialized DrivingRegime (plain CDR, what rclpy would publish for regime_to_msg)."""
+    return _cdr(_REGIME, sample.stamp_ns, frame_id, _regime_values(sample, regime))
 
 
 # -- DrivingFeatures --------------------------------------------------------------------------------
@@ -238,12 +286,15 @@ def features_to_msg(f: Features, frame_id: str = "") -> DrivingFeatures:
 
 __all__ = [
     "RegimeInput",
+    "estimate_to_cdr",
     "estimate_to_msg",
     "features_to_msg",
     "header_msg",
     "measurement_from_msg",
+    "measurement_to_cdr",
     "measurement_to_msg",
     "regime_input_from_msg",
+    "regime_to_cdr",
     "regime_to_msg",
     "stamp_to_ns",
     "time_msg",

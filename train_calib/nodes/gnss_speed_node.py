@@ -33,7 +33,7 @@ from ..track import load_track
 from ..train import load_train
 from .common import WARN, TrainCalibNode, run_node
 from .config import MEASUREMENT_TOPIC, TrackTrainFiles
-from .convert import measurement_to_msg
+from .convert import measurement_to_cdr
 
 STREAM_TOPICS = {GNSS: GNSS_TOPIC, SPEED: SPEED_TOPIC, POWER: POWER_TOPIC}
 
@@ -74,7 +74,7 @@ class GnssSpeedNode(TrainCalibNode):
 
     def _emit(self, measurements: list[Measurement]) -> None:
         for m in measurements:
-            self.publish(MEASUREMENT_TOPIC, measurement_to_msg(m, self._frame_id))
+            self.publish(MEASUREMENT_TOPIC, measurement_to_cdr(m, self._frame_id))
 
     def end_of_input(self) -> None:
         self._emit(self.ingest.flush())

@@ -23,7 +23,7 @@ from ..params import ParamSet
 from ..pipeline import classify_estimate
 from .common import TrainCalibNode, run_node
 from .config import REGIME_TOPIC, RESISTANCE_TOPIC
-from .convert import regime_input_from_msg, regime_to_msg
+from .convert import regime_input_from_msg, regime_to_cdr
 
 
 class RegimeNode(TrainCalibNode):
@@ -41,7 +41,7 @@ class RegimeNode(TrainCalibNode):
         sample = regime_input_from_msg(msg)
         regime = classify_estimate(self.classifier, sample)
         self._counts[regime] += 1
-        self.publish(REGIME_TOPIC, regime_to_msg(sample, regime, msg.header.frame_id))
+        self.publish(REGIME_TOPIC, regime_to_cdr(sample, regime, msg.header.frame_id))
 
     def on_parameters_changed(self, changed: set[type[ParamSet]]) -> None:
         if RegimeConfig in changed:  # a new classifier: the HMM's belief restarts

@@ -23,7 +23,7 @@ from ..params import ParamSet
 from ..train import load_train
 from .common import ERROR, WARN, TrainCalibNode, run_node
 from .config import MEASUREMENT_TOPIC, RESISTANCE_TOPIC, TrainFile
-from .convert import estimate_to_msg, measurement_from_msg
+from .convert import estimate_to_cdr, measurement_from_msg
 
 HEALTH_NAMES = {HEALTH_OK: "ok", HEALTH_REPAIRED: "repaired", HEALTH_DEGRADED: "degraded", HEALTH_RESET: "reset"}
 
@@ -71,7 +71,7 @@ class UkfNode(TrainCalibNode):
             return
         self._health[estimate.health] += 1
         self._last = estimate
-        self.publish(RESISTANCE_TOPIC, estimate_to_msg(estimate, msg.header.frame_id))
+        self.publish(RESISTANCE_TOPIC, estimate_to_cdr(estimate, msg.header.frame_id))
 
     def _safeguard_config(self) -> SafeguardConfig:
         return self.config(SafeguardConfig)

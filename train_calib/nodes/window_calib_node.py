@@ -17,6 +17,7 @@ import math
 from collections import deque
 from typing import Any
 
+from std_msgs.msg import Header
 from train_calib_msgs.msg import DrivingRegime, TrackMeasurement, WindowResistance
 
 from .. import paths
@@ -25,30 +26,49 @@ from ..params import ParamSet
 from ..regime_codes import regime_name
 from ..train import load_train
 from ..window import WindowCalibrator, WindowConfig, WindowFit
+from .cdr import layout
 from .common import WARN, TrainCalibNode, run_node
 from .config import MEASUREMENT_TOPIC, REGIME_TOPIC, WINDOW_TOPIC, TrainFile
-from .convert import measurement_from_msg, stamp_to_ns, time_msg
+from .convert import NS, measurement_from_msg, stamp_to_ns, time_msg
 
+_WINDOW_FIELDS = list(WindowResistance.get_fields_and_field_types())[1:]  # after the header
+_WINDOW_LAYOUT = layout(WindowResistance)
 DROP_REASONS = ("out_of_order", "non_finite")
 """Calibrator counts that are dropped samples (the others are outcomes, reported as values)."""
 
 
+def _window_values(fit: WindowFit) -> tuple:
+    """The WindowResistance fields after the header, in message order and field types."""
+    return (
+        int(fit.run_id),
+        float(fit.window_length),
+        int(fit.sample_count),
+        int(fit.gof_kind),
+        float(fit.gof_value),
+        float(fit.a),
+        float(fit.b),
+        float(fit.c),
+        float(fit.r0),
+        float(fit.r1),
+        float(fit.r2),
+        int(fit.regime),
+        bool(fit.ill_posed),
+        float(fit.speed_span),
+    )
+
+
 def window_to_msg(fit: WindowFit, frame_id: str = "") -> WindowResistance:
     """WindowFit -> WindowResistance (same names and units; NaN before the first well-posed window)."""
-    msg = WindowResistance()
-    msg.header.stamp = time_msg(fit.stamp_ns)
-    msg.header.frame_id = frame_id
-    msg.run_id = int(fit.run_id)
-    msg.window_length = float(fit.window_length)
-    msg.sample_count = int(fit.sample_count)
-    msg.gof_kind = int(fit.gof_kind)
-    msg.gof_value = float(fit.gof_value)
-    msg.a, msg.b, msg.c = float(fit.a), float(fit.b), float(fit.c)
-    msg.r0, msg.r1, msg.r2 = float(fit.r0), float(fit.r1), float(fit.r2)
-    msg.regime = int(fit.regime)
-    msg.ill_posed = bool(fit.ill_posed)
-    msg.speed_span = float(fit.speed_span)
+    msg = WindowResistance(header=Header(stamp=time_msg(fit.stamp_ns), frame_id=frame_id))
+    for name, value in zip(_WINDOW_FIELDS, _window_values(fit), strict=True):
+        setattr(msg, name, value)
     return msg
+
+
+def window_to_cdr(fit: WindowFit, frame_id: str = "") -> bytes:
+    """The serialized WindowResistance (plain CDR, what rclpy would publish for window_to_msg)."""
+    t_ns = int(fit.stamp_ns)
+    return _WINDOW_LAYOUT.encode((t_ns // NS, t_ns % NS, frame_id, *_window_values(fit)))
 
 
 class WindowCalibNode(TrainCalibNode):
@@ -114,7 +134,7 @@ class WindowCalibNode(TrainCalibNode):
             fit = self.calibrator.update(m, regime)
             if fit is not None:
                 self._last = fit
-                self.publish(WINDOW_TOPIC, window_to_msg(fit, frame_id))
+                self.publish(WINDOW_TOPIC, window_to_cdr(fit, frame_id))
         # regimes of measurements never seen (dropped upstream) must not accumulate
         if len(self._regimes) > 4 * max(cfg.max_regime_wait, 1) + 100:
             oldest = self._held[0][0] if self._held else None
