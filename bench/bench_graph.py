@@ -479,10 +479,9 @@ def main() -> int:
             f"separate run (decoding and callback "
             f"without its publishes, which the chain makes too; {Path(args.bag).name}, whole graph): "
             + ", ".join(f"{k} {v['work_us']:.0f} us" for k, v in per.items())
-            + f", /diagnostics {sum(v['diagnostics_us'] for v in per.values()):.0f} us. The same work weighs less "
-            f"against the SingleThreadedExecutor's slower chain (its Python wait-set rebuild per callback), hence its "
-            f"higher ratio at a much lower throughput; the replay keeps the EventsExecutor (see "
-            f"train_calib/nodes/common.py make_executor).",
+            + f", /diagnostics {sum(v['diagnostics_us'] for v in per.values()):.0f} us. The SingleThreadedExecutor "
+            f"(rclpy's default) makes both chains about 5x slower (its Python wait-set rebuild per callback); the "
+            f"replay keeps the EventsExecutor (see train_calib/nodes/common.py make_executor).",
         ]
     with tempfile.TemporaryDirectory(prefix="bench_latency_") as tmp:
         results["latency"] = lat = latency(args.latency_seconds, Path(tmp))
