@@ -253,3 +253,84 @@ def test_hmm_is_total_on_any_sequence(rows):
         assert r in (UNKNOWN, TRACTION, CRUISING, COASTING, BRAKING)
         p = c.probabilities
         assert p is None or (abs(sum(p) - 1.0) < 1e-9 and all(0.0 <= x <= 1.0 for x in p))
+
+
+# -- offline smoothing (forward-backward) ---------------------------------------------------------------------
+
+
+def _brute_force_labels(likelihood, starts, clf) -> list[int]:
+    """Posterior marginals by enumerating every regime path of each sequence (independent of regimes_batch)."""
+    import itertools
+
+    from train_calib.estimation.regimes import _START_PRIOR
+
+    stay, switch = math.exp(clf._log_stay), math.exp(clf._log_switch)
+    bounds = [i for i, s in enumerate(starts) if s] + [len(starts)]
+    labels = []
+    for a, b in itertools.pairwise(bounds):
+        marg = np.zeros((b - a, 4))
+        for path in itertools.product(range(4), repeat=b - a):
+            p = _START_PRIOR[path[0]] * likelihood[a][path[0]]
+            for k in range(1, b - a):
+                p *= (stay if path[k] == path[k - 1] else switch) * likelihood[a + k][path[k]]
+            marg[np.arange(b - a), path] += p
+        labels += (np.argmax(marg, axis=1) + 1).tolist()  # 1 = TRACTION, first of equal maxima
+    return labels
+
+
+def test_smoothed_labels_are_the_exact_posterior_marginals():
+    from train_calib.estimation.regimes_batch import _smoothed
+
+    clf = RegimeClassifier()
+    rng = np.random.default_rng(21)
+    for _ in range(200):
+        n = int(rng.integers(1, 8))
+        likelihood = np.exp(rng.normal(0.0, 2.0, (n, 4))).tolist()
+        starts = [True, *(rng.random(n - 1) < 0.2)]
+        assert _smoothed(likelihood, starts, clf) == _brute_force_labels(likelihood, starts, clf)
+
+
+def test_smoothing_uses_later_samples_and_keeps_unknown_samples():
+    rng = np.random.default_rng(4)
+    effort, accel, truth = scripted([(TRACTION, 10, 0.2), (COASTING, 10, -0.05), (CRUISING, 10, 0.0)], 0.05, 0.03, rng)
+    speed = np.full(effort.size, 30.0)
+    speed[12] = 0.0  # a standstill: UNKNOWN, and the sequences on both sides are smoothed apart
+    effort[20] = np.nan
+    causal = classify_regimes(effort, accel, speed=speed)
+    smooth = classify_regimes(effort, accel, speed=speed, smooth=True)
+    assert ((causal == UNKNOWN) == (smooth == UNKNOWN)).all() and smooth[12] == UNKNOWN and smooth[20] == UNKNOWN
+    # a change is recognised at its first sample, not a sample later
+    assert np.mean(smooth == truth) >= np.mean(causal == truth)
+    with pytest.raises(ValueError, match="smooth"):
+        classify_regimes(effort, accel, RULE, smooth=True)
+
+
+def test_smoothing_lifts_every_bundled_bag_over_90_percent():
+    """docs/estimator.md: causal 89.6-96.9 % (bag _02 under 90 %), smoothed over the run 90.2-97.8 % with the
+    converging filter (measured; the bound leaves 0.2 points)."""
+    from pathlib import Path
+
+    from train_calib.estimation import EstimateSeries, UKFConfig
+    from train_calib.paths import bags_dir, track_file, train_file
+    from train_calib.pipeline import run_bag
+    from train_calib.sim import read_truth
+    from train_calib.track import load_track
+    from train_calib.train import load_train
+
+    gains = []
+    for truth_csv in sorted(bags_dir().glob("*.truth.csv")):
+        bag = str(truth_csv)[: -len(".truth.csv")]
+        tf = read_truth(bag)
+        track = load_track(track_file(Path(tf.meta["track"]["file"]).stem))
+        train = load_train(train_file(Path(tf.meta["train"]["file"]).stem))
+        est = EstimateSeries.from_samples(run_bag(bag, track, train, ukf=UKFConfig.converging()).estimates)
+        kw = {"speed": est.v, "effort_known": est.effort_known, "opposing_force": est.resistance + est.track_force}
+        causal = classify_regimes(est.effort, est.acceleration, **kw)
+        smooth = classify_regimes(est.effort, est.acceleration, smooth=True, **kw)
+        idx = np.minimum(np.searchsorted(tf.truth.t_ns, est.stamp_ns), len(tf.truth) - 1)
+        ok = tf.truth.t_ns[idx] == est.stamp_ns
+        truth = tf.truth.regime[idx[ok]]
+        acc_causal, acc_smooth = np.mean(causal[ok] == truth), np.mean(smooth[ok] == truth)
+        assert acc_smooth >= 0.90, (Path(bag).name, acc_causal, acc_smooth)
+        gains.append(acc_smooth - acc_causal)
+    assert len(gains) == 7 and np.mean(gains) >= 0.015  # measured mean gain 2.3 points

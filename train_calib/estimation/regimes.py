@@ -244,12 +244,14 @@ def classify_regimes(
     *,
     effort_known=None,
     opposing_force=None,
+    smooth: bool = False,
 ) -> np.ndarray:
     """``RegimeClassifier.classify`` over a sequence in time order: uint8 array of the broadcast shape.
 
     ``rule``: vectorised. ``hmm``: the classifier's filter over the (flattened) samples in order, as the node
     runs it (:mod:`.regimes_batch`: the same operations arranged for numpy), so the result is the node's
-    message for message.
+    message for message. ``smooth`` (``hmm`` only; offline): each sample's regime given the whole run
+    (forward-backward) -- more often right (docs/estimator.md), never what the node publishes.
     """
     cfg = config if config is not None else RegimeConfig()
     e, a = np.broadcast_arrays(np.asarray(effort, dtype=float), np.asarray(acceleration, dtype=float))
@@ -266,8 +268,11 @@ def classify_regimes(
             flat(speed, float),
             flat(effort_known, bool),
             flat(opposing_force, float),
+            smooth,
         )
         return out.reshape(e.shape)
+    if smooth:
+        raise ValueError("smooth: only with method hmm (the rule has no state to smooth)")
     coast = np.abs(e) <= cfg.effort_tolerance
     if cfg.hold_detection:
         coast &= ~((np.abs(a) < np.abs(e)) & (np.abs(a) <= cfg.cruise_tolerance))

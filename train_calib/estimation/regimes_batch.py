@@ -7,6 +7,12 @@ only the forward recursion -- four multiplications and a normalisation per sampl
 plain floats. numpy's and scipy's exp/log/erf may differ from the math module's in the last bit, so the
 probabilities agree to round-off and a label can differ only on an exact tie (test/estimation/test_regimes.py
 checks the labels on the bundled runs).
+
+``smooth=True`` (offline only) labels each sample with the regime most probable given the *whole* run
+instead: the same forward pass, then the backward recursion of the forward-backward algorithm within each
+moving sequence (a standstill ends one), and the most probable regime of each sample's posterior marginal
+(which maximises the expected number of right labels). No longer causal: a sample's label depends on later
+samples, so it is never what the graph publishes.
 """
 
 from __future__ import annotations
@@ -27,14 +33,16 @@ def classify_hmm(
     speed: np.ndarray | None,
     known: np.ndarray | None,
     w_given: np.ndarray | None,
+    smooth: bool = False,
 ) -> np.ndarray:
     """Regimes (uint8) of 1-d float arrays effort e (N/kg), acceleration a (m/s^2), speed (m/s) or None,
-    known (bool) or None, w_given = resistance + track force (N/kg) or None; clf supplies the constants."""
+    known (bool) or None, w_given = resistance + track force (N/kg) or None; clf supplies the constants.
+    ``smooth``: posterior given the whole run (forward-backward) instead of the causal filter."""
     with np.errstate(all="ignore"):  # extreme inputs overflow to inf as the math module's floats do
-        return _classify(e, a, clf, speed, known, w_given)
+        return _classify(e, a, clf, speed, known, w_given, smooth)
 
 
-def _classify(e, a, clf, speed, known, w_given) -> np.ndarray:
+def _classify(e, a, clf, speed, known, w_given, smooth=False) -> np.ndarray:
     n = len(e)
     out = np.full(n, UNKNOWN, dtype=np.uint8)
     usable = ~(np.isnan(e) | np.isnan(a))  # NaN effort or acceleration: UNKNOWN, the filter left as it is
@@ -85,7 +93,7 @@ def _classify(e, a, clf, speed, known, w_given) -> np.ndarray:
     starts = np.empty(len(index), dtype=bool)
     starts[0] = True
     starts[1:] = resets[1:] != resets[:-1]
-    out[index] = _forward(likelihood, starts.tolist(), clf)
+    out[index] = (_smoothed if smooth else _forward)(likelihood, starts.tolist(), clf)
     return out
 
 
@@ -120,9 +128,14 @@ def _log_erfc(x: np.ndarray) -> np.ndarray:
 
 def _forward(likelihood: list[list[float]], starts: list[bool], clf: RegimeClassifier) -> list[int]:
     """The forward recursion on the likelihoods exp(log density - max) per sample: the most probable regime."""
+    return [_most_probable(*p) for p in _filtered(likelihood, starts, clf)]
+
+
+def _filtered(likelihood: list[list[float]], starts: list[bool], clf: RegimeClassifier) -> list[tuple]:
+    """The forward recursion: P(regime | this and earlier samples of the sequence) per sample."""
     stay, switch = math.exp(clf._log_stay), math.exp(clf._log_switch)
     keep = stay - switch
-    regimes = []
+    out = []
     p0 = p1 = p2 = p3 = 0.0
     for (l0, l1, l2, l3), start in zip(likelihood, starts):
         if start:
@@ -132,12 +145,43 @@ def _forward(likelihood: list[list[float]], starts: list[bool], clf: RegimeClass
         q0, q1, q2, q3 = q0 * l0, q1 * l1, q2 * l2, q3 * l3
         total = q0 + q1 + q2 + q3
         p0, p1, p2, p3 = q0 / total, q1 / total, q2 / total, q3 / total
-        best, top = 1, p0  # TRACTION; the first of equal maxima as RegimeClassifier
-        if p1 > top:
-            best, top = 2, p1
-        if p2 > top:
-            best, top = 3, p2
-        if p3 > top:
-            best = 4
-        regimes.append(best)
+        out.append((p0, p1, p2, p3))
+    return out
+
+
+def _most_probable(p0: float, p1: float, p2: float, p3: float) -> int:
+    """The regime code of the largest of (TRACTION, CRUISING, COASTING, BRAKING); the first of equal maxima, as
+    RegimeClassifier."""
+    best, top = 1, p0
+    if p1 > top:
+        best, top = 2, p1
+    if p2 > top:
+        best, top = 3, p2
+    if p3 > top:
+        best = 4
+    return best
+
+
+def _smoothed(likelihood: list[list[float]], starts: list[bool], clf: RegimeClassifier) -> list[int]:
+    """Forward-backward on the same likelihoods and sequences: the most probable regime of each sample's posterior
+    marginal given the whole sequence. The transition matrix is keep I + switch 1 1^T, so A b = keep b + switch
+    sum(b); each backward message is normalised (only its direction matters)."""
+    stay, switch = math.exp(clf._log_stay), math.exp(clf._log_switch)
+    keep = stay - switch
+    filtered = _filtered(likelihood, starts, clf)
+    n = len(filtered)
+    regimes = [0] * n
+    b0 = b1 = b2 = b3 = 1.0
+    for i in range(n - 1, -1, -1):
+        if i + 1 < n and not starts[i + 1]:  # the message from sample i + 1 of the same sequence
+            l0, l1, l2, l3 = likelihood[i + 1]
+            c0, c1, c2, c3 = l0 * b0, l1 * b1, l2 * b2, l3 * b3
+            common = switch * (c0 + c1 + c2 + c3)
+            b0, b1, b2, b3 = keep * c0 + common, keep * c1 + common, keep * c2 + common, keep * c3 + common
+            total = b0 + b1 + b2 + b3
+            b0, b1, b2, b3 = b0 / total, b1 / total, b2 / total, b3 / total
+        else:  # the last sample of a sequence
+            b0 = b1 = b2 = b3 = 1.0
+        f0, f1, f2, f3 = filtered[i]
+        regimes[i] = _most_probable(f0 * b0, f1 * b1, f2 * b2, f3 * b3)
     return regimes
