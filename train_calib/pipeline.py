@@ -15,6 +15,7 @@ on each regime change, and once with ``run_complete`` when the run ends (next ru
 from __future__ import annotations
 
 import math
+from collections import deque
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -68,6 +69,45 @@ def classify_estimate(classifier: RegimeClassifier, estimate: Any) -> int:
     return classifier.classify(
         estimate.effort, estimate.acceleration, estimate.v, effort_known=estimate.effort_known, opposing_force=w
     )
+
+
+class RegimeStream:
+    """regime_node's publication rule (shared with :class:`Pipeline`): ``push(sample)`` classifies an estimate and
+    returns the (sample, regime) pairs to publish now, in order. With ``lag_samples`` 0 that is the sample itself;
+    with 1 the previous sample, its regime revised with this one (``RegimeClassifier.revised_previous``; its own
+    causal regime where this sample does not inform it, e.g. a new run), and this one is held until the next or
+    ``flush()`` (end of input). Samples carry ``run_id``; the held one is released with its causal regime when a
+    sample of another run comes."""
+
+    def __init__(self, config: RegimeConfig | None = None) -> None:
+        self.config = config if config is not None else RegimeConfig()
+        self.classifier = RegimeClassifier(self.config)
+        self._lag = self.config.lag_samples > 0
+        self._held: tuple[Any, int] | None = None
+
+    @property
+    def pending(self) -> int:
+        """Samples classified but not yet released."""
+        return int(self._held is not None)
+
+    def push(self, sample: Any) -> list[tuple[Any, int]]:
+        regime = classify_estimate(self.classifier, sample)
+        if not self._lag:
+            return [(sample, regime)]
+        out = []
+        if self._held is not None:
+            held, held_regime = self._held
+            revised = self.classifier.revised_previous
+            if revised is not None and held.run_id == sample.run_id:
+                held_regime = revised
+            out.append((held, held_regime))
+        self._held = (sample, regime)
+        return out
+
+    def flush(self) -> list[tuple[Any, int]]:
+        """Release the held sample with its causal regime (end of input)."""
+        held, self._held = self._held, None
+        return [held] if held is not None else []
 
 
 class FeatureStream:
@@ -147,12 +187,13 @@ class Pipeline:
     ) -> None:
         self.ingest = Ingest(track, train, ingest) if track is not None else None
         self.estimator = ResistanceEstimator(train, ukf, initial, safeguards)
-        self.classifier = RegimeClassifier(regime)
+        self.regimes = RegimeStream(regime)
         self.features = FeatureStream(features)
         self.window: WindowCalibrator | None = None
         if window is not False:
             self.window = WindowCalibrator(train, WindowConfig() if window is True else window)
         self.out = PipelineOutput(ingest_stats=self.ingest.stats if self.ingest is not None else None)
+        self._measurements_held: deque[tuple[Measurement, bool]] = deque()  # (m, has an estimate) awaiting regimes
 
     def add_event(self, event: Any) -> None:
         """A GnssFix, SpeedSample or PowerSample (ingest input)."""
@@ -174,13 +215,31 @@ class Pipeline:
         out.measurements.append(m)
         e = self.estimator.update(m)
         if self.estimator.rejected is not None:  # ukf_node drops it: no estimate, no regime
-            self._window(m, None)  # window_calib_node uses it without a regime (from power) once a later one comes
+            # window_calib_node uses it without a regime (from power) once a later one comes, in stamp order
+            self._measurements_held.append((m, False))
+            self._release_unregimed()
             return
         out.estimates.append(e)
-        regime = classify_estimate(self.classifier, e)
-        out.regimes.append(RegimeRecord(e.stamp_ns, e.run_id, regime, e.s, e.v, e.effort, e.acceleration, e.v_measured))
-        out.features += self.features.update(e, regime)
-        self._window(m, regime)
+        self._measurements_held.append((m, True))
+        self._publish_regimes(self.regimes.push(e))
+
+    def _publish_regimes(self, pairs: list[tuple[EstimateSample, int]]) -> None:
+        """What regime_node publishes, then what feature_node and window_calib_node do with each regime."""
+        out = self.out
+        for e, regime in pairs:
+            m, _ = self._measurements_held.popleft()  # e's measurement (those without an estimate went before)
+            out.regimes.append(
+                RegimeRecord(e.stamp_ns, e.run_id, regime, e.s, e.v, e.effort, e.acceleration, e.v_measured)
+            )
+            out.features += self.features.update(e, regime)
+            self._window(m, regime)
+            self._release_unregimed()
+
+    def _release_unregimed(self) -> None:
+        """The measurements without an estimate now at the front of the queue go to the window without a regime."""
+        held = self._measurements_held
+        while held and not held[0][1]:
+            self._window(held.popleft()[0], None)
 
     def _window(self, m: Measurement, regime: int | None) -> None:
         if self.window is not None:
@@ -193,6 +252,7 @@ class Pipeline:
         if self.ingest is not None:
             for m in self.ingest.flush():
                 self.add_measurement(m)
+        self._publish_regimes(self.regimes.flush())
         self.out.features += self.features.end_of_input()
         return self.out
 

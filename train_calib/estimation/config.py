@@ -314,6 +314,13 @@ class RegimeConfig(ParamSet):
         low=0.1,
         high=1000.0,
     )
+    lag_samples: int = param(
+        0,
+        "hmm: 0 publishes each sample's regime at once (causal); 1 publishes it when the next sample has come, given "
+        "that one too (a fixed-lag smoother: more labels right at 10 s sampling, one sample period later)",
+        low=0,
+        high=1,
+    )
 
     def validate(self, source: str = "parameters", prefix: str = "") -> None:
         if not self.brake_decel_min < self.brake_decel_max:

@@ -96,11 +96,13 @@ class RegimeClassifier:
         "_b_lo",
         "_hmm",
         "_known_log",
+        "_lagged",
         "_lam",
         "_log_norm",
         "_log_stay",
         "_log_switch",
         "_prob",
+        "_revised",
         "_sigma",
         "_t_const",
         "_t_min",
@@ -128,13 +130,22 @@ class RegimeClassifier:
         self._vc2 = cfg.resistance_shape_speed**2
         self._known_log = math.log(cfg.known_coast_odds)
         self._w_rel = cfg.resistance_rel_std
+        self._lagged = cfg.lag_samples > 0
         self.reset()
 
     def reset(self) -> None:
         """Forget the past samples (an unrelated sequence follows)."""
         self._prob: list[float] | None = None
+        self._revised: int | None = None
         self._w_last = math.nan
         self._w_speed = math.nan
+
+    @property
+    def revised_previous(self) -> int | None:
+        """hmm with ``lag_samples`` 1: the regime of the previous moving sample given the last sample too (one step
+        of the backward recursion: a fixed-lag smoother of one sample); None when the last call did not inform it
+        (the last sample was not filtered -- standing, NaN, the rule -- or started a new sequence)."""
+        return self._revised
 
     @property
     def probabilities(self) -> tuple[float, ...] | None:
@@ -156,6 +167,7 @@ class RegimeClassifier:
         (m/s), optional. Optional for ``hmm`` (ResistanceEstimate fields): ``effort_known`` and
         ``opposing_force`` = resistance + track_force (N/kg), the force the effort works against.
         """
+        self._revised = None
         e = _float(effort)
         a = _float(acceleration)
         if e is None or a is None or math.isnan(e) or math.isnan(a):
@@ -216,7 +228,12 @@ class RegimeClassifier:
             stay, switch = math.exp(self._log_stay), math.exp(self._log_switch)
             prior = tuple(p * (stay - switch) + switch for p in prev)
         top = max(logs)
-        post = [p * math.exp(lg - top) for p, lg in zip(prior, logs)]
+        likelihood = [math.exp(lg - top) for lg in logs]
+        post = [p * lk for p, lk in zip(prior, likelihood)]
+        if prev is not None and self._lagged:  # the previous sample given this one: p_prev * (A l), A = keep I + switch
+            common = switch * sum(likelihood)
+            revised = [p * ((stay - switch) * lk + common) for p, lk in zip(prev, likelihood)]
+            self._revised = 1 + max(range(4), key=revised.__getitem__)  # the first of equal maxima
         total = post[0] + post[1] + post[2] + post[3]
         self._prob = prob = [p / total for p in post]
         best = 0

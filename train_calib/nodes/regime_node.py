@@ -9,6 +9,8 @@ pipeline's call too). Standing (slower than ``standstill_speed``) is UNKNOWN.
 belief over the regimes from sample to sample (restarted by a standstill). ``method: rule`` is the paper's
 stateless per-sample rule. A parameter change at run time takes effect at once by building a new classifier:
 with ``hmm`` this restarts the belief (the next sample is classified as the first of a departure).
+``lag_samples: 1`` publishes each sample's regime when the next estimate has come, revised with it
+(:class:`train_calib.pipeline.RegimeStream`; the message keeps the sample's own stamp).
 """
 
 from __future__ import annotations
@@ -20,7 +22,7 @@ from train_calib_msgs.msg import DrivingRegime, ResistanceEstimate
 
 from ..estimation import REGIME_NAMES, RegimeClassifier, RegimeConfig
 from ..params import ParamSet
-from ..pipeline import classify_estimate
+from ..pipeline import RegimeStream
 from .common import TrainCalibNode, run_node
 from .config import REGIME_TOPIC, RESISTANCE_TOPIC
 from .convert import regime_input_from_msg, regime_to_cdr
@@ -31,21 +33,37 @@ class RegimeNode(TrainCalibNode):
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(**kwargs)
-        self.classifier = RegimeClassifier(self.config(RegimeConfig))
+        self.stream = RegimeStream(self.config(RegimeConfig))
+        self._frame_id = ""
         self._counts: Counter[int] = Counter()
         self._restarts = 0
         self.output(DrivingRegime, REGIME_TOPIC)
         self.chain_input(ResistanceEstimate, RESISTANCE_TOPIC, self._on_estimate)
 
+    @property
+    def classifier(self) -> RegimeClassifier:
+        return self.stream.classifier
+
+    @property
+    def pending(self) -> int:
+        return self.stream.pending
+
     def _on_estimate(self, msg: ResistanceEstimate) -> None:
-        sample = regime_input_from_msg(msg)
-        regime = classify_estimate(self.classifier, sample)
-        self._counts[regime] += 1
-        self.publish(REGIME_TOPIC, regime_to_cdr(sample, regime, msg.header.frame_id))
+        self._frame_id = msg.header.frame_id
+        self._publish(self.stream.push(regime_input_from_msg(msg)))
+
+    def _publish(self, pairs: list) -> None:
+        for sample, regime in pairs:
+            self._counts[regime] += 1
+            self.publish(REGIME_TOPIC, regime_to_cdr(sample, regime, self._frame_id))
+
+    def end_of_input(self) -> None:
+        self._publish(self.stream.flush())
 
     def on_parameters_changed(self, changed: set[type[ParamSet]]) -> None:
         if RegimeConfig in changed:  # a new classifier: the HMM's belief restarts
-            self.classifier = RegimeClassifier(self.config(RegimeConfig))
+            self._publish(self.stream.flush())
+            self.stream = RegimeStream(self.config(RegimeConfig))
             self._restarts += 1
 
     def diagnostic_values(self) -> list[tuple[str, Any]]:
