@@ -87,14 +87,15 @@ def test_every_mode_and_rate_gives_the_same_messages(bag, reference, tmp_path, m
         assert result.wall_s >= result.bag_duration_s / 400.0  # paced by the bag's timing, not as fast as possible
 
 
-def test_regimes_one_sample_late_give_the_pipeline_s_messages(bag, tmp_path):
+@pytest.mark.parametrize("mode", [{}, {"processes": True}], ids=["one-process", "one-process-per-node"])
+def test_regimes_one_sample_late_give_the_pipeline_s_messages(bag, tmp_path, mode):
     """regime_node with lag_samples 1 (fixed-lag smoother): the graph publishes what run_bag computes with it (the
     held sample of each run released at the next run or the end of input; window_calib_node waits for it)."""
     from train_calib.estimation import RegimeConfig
 
     params = tmp_path / "lag.yaml"
     params.write_text(yaml.safe_dump({"regime_node": {"ros__parameters": {"lag_samples": 1}}}))
-    _replay(bag, tmp_path / "out", params_files=(params,))
+    _replay(bag, tmp_path / "out", params_files=(params,), **mode)
     lagged = run_bag(bag, load_track(TRACK), load_train(TRAIN), regime=RegimeConfig(lag_samples=1))
     assert compare(read_outputs(tmp_path / "out"), lagged) == []
     assert [r.stamp_ns for r in lagged.regimes] == [e.stamp_ns for e in lagged.estimates]  # each once, in order
