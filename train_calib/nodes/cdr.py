@@ -33,7 +33,7 @@ _ORIGIN = 4  # alignment is counted from the end of the 4-byte encapsulation hea
 # rosidl basic type -> (struct code, size = CDR alignment)
 _BASIC = {
     "boolean": ("?", 1),
-    "octet": ("B", 1),
+    "octet": ("c", 1),  # rclpy: bytes of length 1
     "char": ("B", 1),
     "uint8": ("B", 1),
     "int8": ("b", 1),
@@ -81,6 +81,8 @@ class _Builder:
             self.items.append(_BASIC[t.typename])
             return f"v[{len(self.items) - 1}]"
         if isinstance(t, rosidl.Array):
+            if not isinstance(t.value_type, rosidl.BasicType):
+                raise Unsupported("array of " + type(t.value_type).__name__)  # strings or messages: rclpy's
             first = len(self.items)
             for _ in range(t.size):
                 self.field(t.value_type)
