@@ -68,6 +68,19 @@ def _rule(e: float, a: float, cfg: RegimeConfig) -> int:
     return TRACTION if e > 0.0 else BRAKING
 
 
+def _most_probable(p0: float, p1: float, p2: float, p3: float) -> int:
+    """The regime code of the largest of the weights of (TRACTION, CRUISING, COASTING, BRAKING); the first of equal
+    maxima."""
+    best, top = TRACTION, p0
+    if p1 > top:
+        best, top = CRUISING, p1
+    if p2 > top:
+        best, top = COASTING, p2
+    if p3 > top:
+        best = BRAKING
+    return best
+
+
 def _log_erfc(x: float) -> float:
     """log(erfc(x)); the asymptotic series where erfc underflows."""
     if x < 5.0:
@@ -232,15 +245,11 @@ class RegimeClassifier:
         post = [p * lk for p, lk in zip(prior, likelihood)]
         if prev is not None and self._lagged:  # the previous sample given this one: p_prev * (A l), A = keep I + switch
             common = switch * sum(likelihood)
-            revised = [p * ((stay - switch) * lk + common) for p, lk in zip(prev, likelihood)]
-            self._revised = 1 + max(range(4), key=revised.__getitem__)  # the first of equal maxima
+            keep = stay - switch
+            self._revised = _most_probable(*(p * (keep * lk + common) for p, lk in zip(prev, likelihood)))
         total = post[0] + post[1] + post[2] + post[3]
         self._prob = prob = [p / total for p in post]
-        best = 0
-        for k in (1, 2, 3):
-            if prob[k] > prob[best]:
-                best = k
-        return best + 1
+        return _most_probable(*prob)
 
     def _carried_w(self, v: float) -> float:
         """r + g where the effort is known: the last computed-effort value, scaled with speed."""

@@ -23,7 +23,7 @@ import numpy as np
 from scipy.special import erf, erfc
 
 from ..regime_codes import UNKNOWN
-from .regimes import _DEFAULT_W, _LOG_SQRT_2PI, _SQRT2, _START_PRIOR, RegimeClassifier, _rule
+from .regimes import _DEFAULT_W, _LOG_SQRT_2PI, _SQRT2, _START_PRIOR, RegimeClassifier, _most_probable, _rule
 
 
 def classify_hmm(
@@ -147,19 +147,6 @@ def _filtered(likelihood: list[list[float]], starts: list[bool], clf: RegimeClas
         p0, p1, p2, p3 = q0 / total, q1 / total, q2 / total, q3 / total
         out.append((p0, p1, p2, p3))
     return out
-
-
-def _most_probable(p0: float, p1: float, p2: float, p3: float) -> int:
-    """The regime code of the largest of (TRACTION, CRUISING, COASTING, BRAKING); the first of equal maxima, as
-    RegimeClassifier."""
-    best, top = 1, p0
-    if p1 > top:
-        best, top = 2, p1
-    if p2 > top:
-        best, top = 3, p2
-    if p3 > top:
-        best = 4
-    return best
 
 
 def _smoothed(likelihood: list[list[float]], starts: list[bool], clf: RegimeClassifier) -> list[int]:

@@ -82,7 +82,9 @@ def _message(cls: type, t_ns: int, frame_id: str, values: tuple) -> Any:
     return msg
 
 
-def _cdr(layout: cdr.Layout, t_ns: int, frame_id: str, values: tuple) -> bytes:
+def to_cdr(layout: cdr.Layout, t_ns: int, frame_id: str, values: tuple) -> bytes:
+    """The serialized message of `layout` with this header (stamp in ns, frame_id) and these scalar values of the
+    fields after it, in message order (arrays flattened)."""
     t_ns = int(t_ns)
     return layout.encode((t_ns // NS, t_ns % NS, frame_id, *values))
 
@@ -116,7 +118,7 @@ def measurement_to_msg(m: Measurement, frame_id: str = "") -> TrackMeasurement:
 
 def measurement_to_cdr(m: Measurement, frame_id: str = "") -> bytes:
     """The serialized TrackMeasurement (plain CDR, what rclpy would publish for measurement_to_msg)."""
-    return _cdr(_MEASUREMENT, m.stamp_ns, frame_id, _measurement_values(m))
+    return to_cdr(_MEASUREMENT, m.stamp_ns, frame_id, _measurement_values(m))
 
 
 def measurement_from_msg(msg: Any) -> Measurement:
@@ -171,7 +173,7 @@ def estimate_to_msg(e: EstimateSample, frame_id: str = "") -> ResistanceEstimate
 def estimate_to_cdr(e: EstimateSample, frame_id: str = "") -> bytes:
     """The serialized ResistanceEstimate (plain CDR, what rclpy would publish for estimate_to_msg)."""
     run_id, s, v, r0, r1, r2, cov, *rest = _estimate_values(e)
-    return _cdr(_ESTIMATE, e.stamp_ns, frame_id, (run_id, s, v, r0, r1, r2, *cov, *rest))
+    return to_cdr(_ESTIMATE, e.stamp_ns, frame_id, (run_id, s, v, r0, r1, r2, *cov, *rest))
 
 
 @dataclass(slots=True)
@@ -241,7 +243,7 @@ def regime_to_msg(sample: RegimeInput | EstimateSample, regime: int, frame_id: s
 
 def regime_to_cdr(sample: RegimeInput | EstimateSample, regime: int, frame_id: str = "") -> bytes:
     """The serialized DrivingRegime (plain CDR, what rclpy would publish for regime_to_msg)."""
-    return _cdr(_REGIME, sample.stamp_ns, frame_id, _regime_values(sample, regime))
+    return to_cdr(_REGIME, sample.stamp_ns, frame_id, _regime_values(sample, regime))
 
 
 # -- DrivingFeatures --------------------------------------------------------------------------------
@@ -298,4 +300,5 @@ __all__ = [
     "regime_to_msg",
     "stamp_to_ns",
     "time_msg",
+    "to_cdr",
 ]

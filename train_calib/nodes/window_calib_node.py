@@ -17,7 +17,6 @@ import math
 from collections import deque
 from typing import Any
 
-from std_msgs.msg import Header
 from train_calib_msgs.msg import DrivingRegime, TrackMeasurement, WindowResistance
 
 from .. import paths
@@ -29,7 +28,7 @@ from ..window import WindowCalibrator, WindowConfig, WindowFit
 from .cdr import layout
 from .common import WARN, TrainCalibNode, run_node
 from .config import MEASUREMENT_TOPIC, REGIME_TOPIC, WINDOW_TOPIC, TrainFile
-from .convert import NS, measurement_from_msg, stamp_to_ns, time_msg
+from .convert import header_msg, measurement_from_msg, stamp_to_ns, to_cdr
 
 _WINDOW_FIELDS = list(WindowResistance.get_fields_and_field_types())[1:]  # after the header
 _WINDOW_LAYOUT = layout(WindowResistance)
@@ -59,7 +58,7 @@ def _window_values(fit: WindowFit) -> tuple:
 
 def window_to_msg(fit: WindowFit, frame_id: str = "") -> WindowResistance:
     """WindowFit -> WindowResistance (same names and units; NaN before the first well-posed window)."""
-    msg = WindowResistance(header=Header(stamp=time_msg(fit.stamp_ns), frame_id=frame_id))
+    msg = WindowResistance(header=header_msg(fit.stamp_ns, frame_id))
     for name, value in zip(_WINDOW_FIELDS, _window_values(fit), strict=True):
         setattr(msg, name, value)
     return msg
@@ -67,8 +66,7 @@ def window_to_msg(fit: WindowFit, frame_id: str = "") -> WindowResistance:
 
 def window_to_cdr(fit: WindowFit, frame_id: str = "") -> bytes:
     """The serialized WindowResistance (plain CDR, what rclpy would publish for window_to_msg)."""
-    t_ns = int(fit.stamp_ns)
-    return _WINDOW_LAYOUT.encode((t_ns // NS, t_ns % NS, frame_id, *_window_values(fit)))
+    return to_cdr(_WINDOW_LAYOUT, fit.stamp_ns, frame_id, _window_values(fit))
 
 
 class WindowCalibNode(TrainCalibNode):
