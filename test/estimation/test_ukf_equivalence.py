@@ -179,6 +179,8 @@ def test_smoother_identical_to_filterpy_rts():
     xs, ps, _ = ukf.rts_smoother(est.state.copy(), est.covariance.copy(), dts=np.arange(n, dtype=float))
     xs[:, 1:] = np.maximum(xs[:, 1:], 0.0)  # smooth_run clips v and r at 0
     assert relative(smoothed.state, xs).max() < 1e-9
-    assert cov_relative(smoothed.covariance, ps) < 1e-7
+    # the smoothed covariance subtracts nearly equal matrices: OpenBLAS's kernel for the CPU shows at this level
+    # (measured 5.4e-8 with its Haswell / Zen kernels, 1.3e-7 SkylakeX (AVX-512), 2.2e-7 Sandybridge)
+    assert cov_relative(smoothed.covariance, ps) < 5e-7
     # the smoother uses the future: the smoothed speed is closer to the truth than the filtered one
     assert np.all(np.isfinite(smoothed.state))
