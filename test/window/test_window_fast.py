@@ -107,6 +107,7 @@ def test_step_model_equals_the_array_functions_bit_for_bit(scheme, constraints):
         valid += 1
         expected = (*rows.x[k], rows.y[k], rows.upper[k], rows.v[k], rows.acceleration[k], rows.force[k])
         assert row == expected, (k, row, expected)
+        assert row[5] == row[1]  # the row's speed is its x1 (the calibrator's buffer keeps it once)
         assert step.regime(row[7], row[6]) == regimes[k]
     assert 50 < valid < n - 50
 

@@ -23,31 +23,33 @@ class _RowBuffer:
 
     def _alloc(self, capacity: int) -> None:
         self.end_ns = np.empty(capacity, dtype=np.int64)
-        self.xy = np.empty((capacity, 4))  # x (1, v, v^2 (1 + f_tun tau)) and y, N/kg
+        self.xy = np.empty((capacity, 4))  # x (1, v, v^2 (1 + f_tun tau)) and y, N/kg; the row's speed v is x1
         self.upper = np.empty(capacity)  # N/kg
         self.upper_tol = np.empty(capacity)  # upper + 1e-12 max(1, |upper|), the solver's feasibility test
-        self.v = np.empty(capacity)  # m/s
         self.negative = np.empty(capacity, dtype=bool)  # a negative entry in x
         self.start = self.stop = 0
         self.negatives = 0
+        self.below_zero = 0  # rows with upper_tol < 0 (infeasible at r = 0)
 
-    _NAMES = ("end_ns", "xy", "upper", "upper_tol", "v", "negative")
+    _NAMES = ("end_ns", "xy", "upper", "upper_tol", "negative")
 
     def clear(self) -> None:
         self.start = self.stop = 0
         self.negatives = 0
+        self.below_zero = 0
 
     def __len__(self) -> int:
         return self.stop - self.start
 
     def append(self, end_ns: int, row: tuple[float, ...]) -> None:
-        """Add a row (x0, x1, x2, y, upper, v, ...) as StepModel.row gives it."""
-        if self.stop == len(self.v):
+        """Add a row (x0, x1, x2, y, upper, v, ...) as StepModel.row gives it (v == x1 there)."""
+        if self.stop == len(self.upper):
             live = {name: getattr(self, name)[self.start : self.stop].copy() for name in self._NAMES}
-            negatives = self.negatives
+            counts = self.negatives, self.below_zero
             if self.start == 0:
-                self._alloc(2 * len(self.v))
-            self.start, self.stop, self.negatives = 0, len(live["v"]), negatives
+                self._alloc(2 * len(self.upper))
+            self.start, self.stop = 0, len(live["upper"])
+            self.negatives, self.below_zero = counts
             for name, values in live.items():
                 getattr(self, name)[: self.stop] = values
         i = self.stop
@@ -55,8 +57,9 @@ class _RowBuffer:
         self.end_ns[i] = end_ns
         self.xy[i] = row[:4]
         self.upper[i] = upper
-        self.upper_tol[i] = upper + 1e-12 * max(1.0, abs(upper))
-        self.v[i] = row[5]
+        upper_tol = upper + 1e-12 * max(1.0, abs(upper))
+        self.upper_tol[i] = upper_tol
+        self.below_zero += upper_tol < 0.0
         negative = x0 < 0.0 or x1 < 0.0 or x2 < 0.0
         self.negative[i] = negative
         self.negatives += negative
@@ -66,12 +69,14 @@ class _RowBuffer:
         """Drop the steps that end at or before min_ns (stamps in ns, so windows of whole seconds are exact)."""
         while self.start < self.stop and self.end_ns[self.start] <= min_ns:
             self.negatives -= bool(self.negative[self.start])
+            self.below_zero -= bool(self.upper_tol[self.start] < 0.0)
             self.start += 1
 
     def view(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """[x y] (n, 4), upper, upper_tol, v of the rows in the window."""
         s = slice(self.start, self.stop)
-        return self.xy[s], self.upper[s], self.upper_tol[s], self.v[s]
+        xy = self.xy[s]
+        return xy, self.upper[s], self.upper_tol[s], xy[:, 1]
 
 
 class _RegimeTally:
@@ -224,7 +229,9 @@ class WindowCalibrator:
         if not self.fast:
             self._fit.reference += 1
             return fit_design(xy[:, :3], xy[:, 3], upper, v, regime, self.train, self.config, **context)
-        return self._fit(xy, upper, upper_tol, v, regime, nonnegative=not self._rows.negatives, **context)
+        rows = self._rows
+        return self._fit(xy, upper, upper_tol, v, regime, nonnegative=not rows.negatives, below_zero=rows.below_zero,
+                         **context)  # fmt: skip
 
 
 def _finite(m: Measurement) -> bool:

@@ -1,10 +1,11 @@
 """The streaming calibrator's fast path for RMSE: the window's fit from the 4 x 4 QR factor of [x y].
 
-Least squares depends on the rows only through R, the triangular factor of the column-scaled
-[x / scale, y] (one LAPACK call on n x 4): ||x theta - y||^2 = ||R3 phi - c||^2 + rho^2 with
-phi = theta * scale. The bounded problem in three variables is then solved exactly by the KKT
-conditions of its active sets (each variable free, at its lower or at its upper bound), the last
-window's active set tried first; if the result violates an eq. 6/7 row, by the reference's own
+Least squares depends on the rows only through R, the triangular factor of [x y] (one LAPACK call on
+n x 4; Householder QR is invariant to column scaling, so R's columns are scaled afterwards, to unit
+root mean square): ||x theta - y||^2 = ||R3 phi - c||^2 + rho^2 with phi = theta * scale, which gives
+the GoF without another pass over the rows. The bounded problem in three variables is then solved
+exactly by the KKT conditions of its active sets (each variable free, at its lower or at its upper
+bound), the last window's active set tried first; if the result violates an eq. 6/7 row, by the reference's own
 Lawson & Hanson reduction LSI -> LDP -> NNLS on R3. The condition number and the standard errors
 come from R3 too. No sums are carried from window to window (no cancellation over long runs).
 
@@ -66,53 +67,70 @@ class FastFit:
         run_id: int,
         previous: WindowFit | None,
         nonnegative: bool = True,
+        below_zero: int | None = None,
     ) -> WindowFit:
         """The rows used: xy (n, 4) = [x y], upper (N/kg), upper_tol = upper + 1e-12 max(1, |upper|), v (m/s).
 
-        nonnegative: every entry of x is >= 0 (the caller knows it from the rows).
+        nonnegative: every entry of x is >= 0 (the caller knows it from the rows); below_zero: the number of
+        rows with upper_tol < 0 if the caller keeps it (else counted here).
         """
         context = {"stamp_ns": stamp_ns, "run_id": run_id, "previous": previous}
-        fit = self._fast(xy, upper, upper_tol, v, regime, context) if self.enabled and nonnegative else None
+        use_fast = self.enabled and nonnegative
+        fit = self._fast(xy, upper, upper_tol, v, regime, context, below_zero) if use_fast else None
         if fit is None:
             self.reference += 1
             fit = fit_design(xy[:, :3], xy[:, 3], upper, v, regime, self.train, self.config, **context)
         return fit
 
-    def _fast(self, xy, upper, upper_tol, v, regime, context) -> WindowFit | None:
+    def _fast(self, xy, upper, upper_tol, v, regime, context, below_zero) -> WindowFit | None:
         n = len(v)
         if n < 4:
             return None
-        x = xy[:, :3]
-        s0, s1, s2 = x.max(axis=0).tolist()
-        scale = (s0 if s0 > 0.0 else 1.0, s1 if s1 > 0.0 else 1.0, s2 if s2 > 0.0 else 1.0)
-        xys = xy / (scale[0], scale[1], scale[2], 1.0)
-        qr, _, _, info = lapack.dgeqrf(xys)
+        qr, _, _, info = lapack.dgeqrf(xy)  # Householder QR is column-scaling invariant: scale R, not x
         if info != 0:
             return None
-        r = qr[:4, :4].tolist()
+        (r00, r01, r02, c0), (_, r11, r12, c1), (_, _, r22, c2), (_, _, _, rho) = qr[:4, :4].tolist()
+        norm1 = math.sqrt(r01 * r01 + r11 * r11)
+        norm2 = math.sqrt(r02 * r02 + r12 * r12 + r22 * r22)
+        if r00 == 0.0 or norm1 == 0.0 or norm2 == 0.0:
+            return None
+        root_n = math.sqrt(n)  # columns scaled to unit root mean square: |r00| / sqrt(n) = 1
+        s0, s1, s2 = abs(r00) / root_n, norm1 / root_n, norm2 / root_n
+        scale = (s0, s1, s2)
+        r = [[r00 / s0, r01 / s1, r02 / s2, c0], [0.0, r11 / s1, r12 / s2, c1], [0.0, 0.0, r22 / s2, c2]]
         condition = _scaled_condition(r)
         if not condition <= MAX_CONDITION:
             return None
-        xs = xys[:, :3]
+        x = xy[:, :3]
         lo = [b * s for b, s in zip(self.lo, scale)]
         hi = [b * s for b, s in zip(self.hi, scale)]
         # eq. 6/7 rows that hold at the lower bounds; the others are dropped
-        alone = upper_tol >= 0.0 if self.lo_zero else xs @ lo <= upper_tol
-        dropped = n - int(np.count_nonzero(alone))
+        alone = None
+        if self.lo_zero:
+            dropped = int(np.count_nonzero(upper_tol < 0.0)) if below_zero is None else below_zero
+        else:
+            alone = x @ self.lo <= upper_tol
+            dropped = n - int(np.count_nonzero(alone))
         phi = self._box(r, lo, hi)
         if phi is None:
             return None
-        feasible = xs @ phi <= upper_tol
-        if not (feasible.all() if not dropped else np.all(feasible, where=alone)):
-            self.constrained += 1
-            use = alone & np.isfinite(upper)
-            phi = _lsi(r, lo, hi, xs[use], upper[use])
-            if phi is None:
-                return None
-            phi = _clip(phi, lo, hi)
+        feasible = x @ [p / s for p, s in zip(phi, scale)] <= upper_tol
+        if not feasible.all():
+            if dropped and alone is None:
+                alone = upper_tol >= 0.0
+            if not (dropped and np.all(feasible, where=alone)):
+                self.constrained += 1
+                use = np.isfinite(upper) if alone is None else alone & np.isfinite(upper)
+                phi = _lsi(r, lo, hi, x[use] / scale, upper[use])
+                if phi is None:
+                    return None
+                phi = _clip(phi, lo, hi)
         theta = [p / s for p, s in zip(phi, scale)]
-        e = xy[:, 3] - x @ theta
-        squares = float(e @ e)
+        # ||x theta - y||^2 = ||R3 phi - c||^2 + rho^2 (the residual of the rows orthogonal to the columns)
+        (a0, a1, a2, _), (_, b1, b2, _), (_, _, d2, _) = r
+        f0, f1, f2 = phi
+        e0, e1, e2 = a0 * f0 + a1 * f1 + a2 * f2 - c0, b1 * f1 + b2 * f2 - c1, d2 * f2 - c2
+        squares = e0 * e0 + e1 * e1 + e2 * e2 + rho * rho
         relative_error = self._relative_error(r, scale, math.sqrt(squares / (n - 3)))
         span = float(v.max() - v.min())
         reason = ill_posed_reason(n, span, condition, self.config, relative_error)
