@@ -140,8 +140,10 @@ def machine() -> dict[str, str]:
     os_name = next((ln.split("=", 1)[1].strip('"') for ln in _read("/etc/os-release").splitlines()
                     if ln.startswith("PRETTY_NAME=")), platform.system())  # fmt: skip
     virt = "virtual machine" if "hypervisor" in _read("/proc/cpuinfo") else ""
+    flags = set(_read("/proc/cpuinfo").split())
+    simd = "AVX-512" if "avx512f" in flags else "AVX2" if "avx2" in flags else "no AVX2"
     return {
-        "cpu": cpu,
+        "cpu": f"{cpu} ({simd})",
         "cores": str(os.cpu_count()),
         "ram": f"{mem_kb / 1024 / 1024:.1f} GiB",
         "os": f"{os_name}, Linux {platform.release()}" + (f" ({virt})" if virt else ""),
@@ -181,9 +183,10 @@ def bench_env() -> dict[str, str]:
 def speed_probe(repeats: int = 9) -> float:
     """The machine's speed now: median ms of a fixed pure-Python workload (interpreter work, as the core's hot paths).
 
-    On this shared VM it is bimodal at a load average near 0 -- about 15 ms or about 25 ms, switching at random
-    within minutes (the host's other tenants) -- and every absolute time of a benchmark moves with it (measured:
-    estimate_run, paper preset, 1 Hz: 26 ms in the fast state, 43 ms in the slow one).
+    On the AVX2 EPYC VM of the earlier runs it was bimodal at a load average near 0 -- about 15 ms or about 25 ms,
+    switching at random within minutes (the host's other tenants) -- and every absolute time of a benchmark moved
+    with it (estimate_run, paper preset, 1 Hz: 26 ms in the fast state, 43 ms in the slow one); on the AVX-512 EPYC
+    VM of 2026-11-25 it reads about 10 ms (the same run: 14 ms).
     """
     times = []
     for _ in range(repeats):
@@ -278,8 +281,10 @@ def render(outcomes: list[Outcome], info: dict[str, str], started: str, quick: b
         "back, so the ratios are robust to that load; absolute times are not, and a target on an absolute time that",
         "is met only narrowly may flip between runs. The machine's speed itself varies too, at a load average near 0:",
         "the *speed probe* column is the median time of a fixed pure-Python workload (`run_all.speed_probe`) just",
-        "before and after each benchmark, about 15 ms in this VM's fast state and 25 ms in its slow one (the host's",
-        "other tenants; it switches at random within minutes); absolute times scale with it (up to 1.7x).",
+        "before and after each benchmark; absolute times scale with it. Seen so far: about 15 or 25 ms on an AVX2",
+        "EPYC VM (bimodal, the host's other tenants; up to 1.7x on every absolute time), about 10 ms on an AVX-512",
+        "EPYC VM. The graph's ratio moves with the machine too: the middleware (C++) gains more on a faster",
+        "machine than the nodes' Python work (4-node graph: 85 % of its relay chain on the AVX2 VM, 80 % on AVX-512).",
         "",
         f"**Targets met: {met} of {len(judged)}.**",
         "",
