@@ -156,12 +156,14 @@ def machine() -> dict[str, str]:
 
 
 def git_commit() -> str:
-    """Short commit of HEAD, "+dirty" when the working tree has changes."""
+    """Short commit of HEAD, "+dirty" when the working tree has changes (this run's own outputs, RESULTS.md and
+    bench/out, do not count: an earlier run's uncommitted results change nothing that is measured)."""
     try:
         head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=REPO, capture_output=True, text=True,
                               check=True, timeout=30).stdout.strip()  # fmt: skip
-        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=REPO,
-                               capture_output=True, text=True, timeout=60).stdout.strip()  # fmt: skip
+        outputs = [":(exclude)bench/RESULTS.md", ":(exclude)bench/out"]
+        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no", "--", ".", *outputs],
+                               cwd=REPO, capture_output=True, text=True, timeout=60).stdout.strip()  # fmt: skip
     except (OSError, subprocess.SubprocessError):
         return "unknown (no git)"
     return head + ("+dirty" if dirty else "")
