@@ -40,10 +40,21 @@ def _check_layout(cls: type) -> None:
         raise ImportError(f"{cls.__module__}.{cls.__name__}: unexpected generated message layout {cls.__slots__}")
 
 
-for _cls in (Time, Header, TrackMeasurement, ResistanceEstimate, DrivingRegime):
+_SLOTS: dict[type, list[str]] = {}  # message type -> the slots of its fields after the header (layout checked)
+
+
+def _slots_after_header(cls: type) -> list[str]:
+    slots = _SLOTS.get(cls)
+    if slots is None:
+        _check_layout(cls)
+        slots = _SLOTS[cls] = [f"_{name}" for name in cls.get_fields_and_field_types()][1:]
+    return slots
+
+
+for _cls in (Time, Header):
     _check_layout(_cls)
-_SLOTS = {cls: [f"_{name}" for name in cls.get_fields_and_field_types()][1:] for cls in
-          (TrackMeasurement, ResistanceEstimate, DrivingRegime)}  # fmt: skip
+for _cls in (TrackMeasurement, ResistanceEstimate, DrivingRegime):  # this module's writers: checked at import
+    _slots_after_header(_cls)
 _MEASUREMENT, _ESTIMATE, _REGIME = (cdr.layout(c) for c in (TrackMeasurement, ResistanceEstimate, DrivingRegime))
 
 _new = object.__new__
@@ -72,12 +83,13 @@ def header_msg(t_ns: int, frame_id: str) -> Header:
     return h
 
 
-def _message(cls: type, t_ns: int, frame_id: str, values: tuple) -> Any:
-    """A message of `cls` with this header and these values of the fields after it (lists for arrays)."""
+def message_with_header(cls: type, t_ns: int, frame_id: str, values: tuple) -> Any:
+    """A message of `cls` (a header first) with this header and these values of the fields after it, in message
+    order and field types (lists for arrays)."""
     msg = _new(cls)
     msg._check_fields = _CHECK_FIELDS
     msg._header = header_msg(t_ns, frame_id)
-    for slot, value in zip(_SLOTS[cls], values, strict=True):
+    for slot, value in zip(_slots_after_header(cls), values, strict=True):
         setattr(msg, slot, np.array(value, dtype=_float64) if type(value) is list else value)
     return msg
 
@@ -113,7 +125,7 @@ def _measurement_values(m: Measurement) -> tuple:
 
 
 def measurement_to_msg(m: Measurement, frame_id: str = "") -> TrackMeasurement:
-    return _message(TrackMeasurement, m.stamp_ns, frame_id, _measurement_values(m))
+    return message_with_header(TrackMeasurement, m.stamp_ns, frame_id, _measurement_values(m))
 
 
 def measurement_to_cdr(m: Measurement, frame_id: str = "") -> bytes:
@@ -122,9 +134,8 @@ def measurement_to_cdr(m: Measurement, frame_id: str = "") -> bytes:
 
 
 def measurement_from_msg(msg: Any) -> Measurement:
-    stamp = msg.header.stamp
     return Measurement(
-        int(stamp.sec) * NS + int(stamp.nanosec),
+        stamp_to_ns(msg.header.stamp),
         float(msg.s),
         float(msg.v),
         float(msg.track_force),
@@ -167,7 +178,7 @@ def _estimate_values(e: EstimateSample) -> tuple:
 
 
 def estimate_to_msg(e: EstimateSample, frame_id: str = "") -> ResistanceEstimate:
-    return _message(ResistanceEstimate, e.stamp_ns, frame_id, _estimate_values(e))
+    return message_with_header(ResistanceEstimate, e.stamp_ns, frame_id, _estimate_values(e))
 
 
 def estimate_to_cdr(e: EstimateSample, frame_id: str = "") -> bytes:
@@ -199,8 +210,7 @@ class RegimeInput:
 
 def regime_input_from_msg(msg: Any) -> RegimeInput:
     """From a ResistanceEstimate (with effort_known, resistance, track_force) or a DrivingRegime (rclpy or rosbags)."""
-    stamp = msg.header.stamp
-    t_ns = int(stamp.sec) * NS + int(stamp.nanosec)
+    t_ns = stamp_to_ns(msg.header.stamp)
     v_measured = float(getattr(msg, "v_measured", math.nan))  # bags recorded before the field: NaN
     if hasattr(msg, "resistance"):  # a ResistanceEstimate
         return RegimeInput(
@@ -238,7 +248,7 @@ def _regime_values(sample: RegimeInput | EstimateSample, regime: int) -> tuple:
 
 
 def regime_to_msg(sample: RegimeInput | EstimateSample, regime: int, frame_id: str = "") -> DrivingRegime:
-    return _message(DrivingRegime, sample.stamp_ns, frame_id, _regime_values(sample, regime))
+    return message_with_header(DrivingRegime, sample.stamp_ns, frame_id, _regime_values(sample, regime))
 
 
 def regime_to_cdr(sample: RegimeInput | EstimateSample, regime: int, frame_id: str = "") -> bytes:
@@ -295,6 +305,7 @@ __all__ = [
     "measurement_from_msg",
     "measurement_to_cdr",
     "measurement_to_msg",
+    "message_with_header",
     "regime_input_from_msg",
     "regime_to_cdr",
     "regime_to_msg",

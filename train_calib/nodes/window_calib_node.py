@@ -28,9 +28,8 @@ from ..window import WindowCalibrator, WindowConfig, WindowFit
 from .cdr import layout
 from .common import WARN, TrainCalibNode, run_node
 from .config import MEASUREMENT_TOPIC, REGIME_TOPIC, WINDOW_TOPIC, TrainFile
-from .convert import header_msg, measurement_from_msg, stamp_to_ns, to_cdr
+from .convert import measurement_from_msg, message_with_header, stamp_to_ns, to_cdr
 
-_WINDOW_FIELDS = list(WindowResistance.get_fields_and_field_types())[1:]  # after the header
 _WINDOW_LAYOUT = layout(WindowResistance)
 DROP_REASONS = ("out_of_order", "non_finite")
 """Calibrator counts that are dropped samples (the others are outcomes, reported as values)."""
@@ -58,10 +57,7 @@ def _window_values(fit: WindowFit) -> tuple:
 
 def window_to_msg(fit: WindowFit, frame_id: str = "") -> WindowResistance:
     """WindowFit -> WindowResistance (same names and units; NaN before the first well-posed window)."""
-    msg = WindowResistance(header=header_msg(fit.stamp_ns, frame_id))
-    for name, value in zip(_WINDOW_FIELDS, _window_values(fit), strict=True):
-        setattr(msg, name, value)
-    return msg
+    return message_with_header(WindowResistance, fit.stamp_ns, frame_id, _window_values(fit))
 
 
 def window_to_cdr(fit: WindowFit, frame_id: str = "") -> bytes:
