@@ -9,32 +9,21 @@ braking speed or a braking point, constant-deceleration braking per speed step, 
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
+from repo_paths import DATA
 
 from train_calib.estimation import BRAKING, COASTING, CRUISING, TRACTION, UNKNOWN
 from train_calib.measurement import MeasurementSeries
 from train_calib.physics import KMH
-from train_calib.train import Davis, TrainSpec
+from train_calib.train import Davis, TrainSpec, load_train
 
 
 def virm_like_train(**changes) -> TrainSpec:
-    """VIRM-like train of test/data/small_train.yaml."""
-    values = dict(
-        name="test-emu",
-        mass_t=400.0,
-        rotating_mass_factor=1.06,
-        length_m=100.0,
-        davis=Davis(0.0073, 0.00012, 0.000045),
-        max_tractive_effort=0.9,
-        max_tractive_power=9.5,
-        max_brake_decel=0.66,
-        transmission_efficiency=0.85,
-        adhesive_mass_fraction=0.0,
-    )
-    values.update(changes)
-    return TrainSpec(**values)
+    """The VIRM-like train of test/data/small_train.yaml without tunnel factor and adhesion limit."""
+    defaults = {"tunnel_factor": 0.0, "adhesive_mass_fraction": 0.0, "source": ""}
+    return replace(load_train(DATA / "small_train.yaml"), **{**defaults, **changes})
 
 
 @dataclass

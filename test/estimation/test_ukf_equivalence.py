@@ -8,56 +8,10 @@ import numpy as np
 import pytest
 from estimation_cases import synthetic_run, wrong_prior
 from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter
+from filterpy_reference import process, run_filterpy
 
 from train_calib.estimation import UKFConfig, estimate_run, smooth_run
 from train_calib.estimation.run import resistance_run
-
-
-def process(x, dt, u=0.0, g=0.0, rbar=None, midpoint=False):
-    """Cunillera eq. 4-5 (Euler), or the midpoint variant; rbar: the resistance at its mean (decoupled)."""
-    s, v, r0, r1, r2 = x
-    if rbar is not None:
-        r0, r1, r2 = rbar
-    a = u - g - r0 - r1 * v - r2 * v * v
-    if midpoint:
-        vh = v + 0.5 * dt * a
-        a = u - g - r0 - r1 * vh - r2 * vh * vh
-    return np.array([s + dt * v + 0.5 * dt * dt * a, v + dt * a, x[2], x[3], x[4]])
-
-
-def run_filterpy(series, est, cfg: UKFConfig, prior):
-    """filterpy on the inputs the estimator used (its effort u, g, dt, decoupling and consider steps)."""
-    pts = MerweScaledSigmaPoints(5, alpha=cfg.alpha, beta=cfg.beta, kappa=cfg.kappa)
-    mid = cfg.integration == "midpoint"
-    ukf = UnscentedKalmanFilter(5, 2, 10.0, lambda x: x[:2], process, pts)
-    ukf.x = np.array([series.s[0], series.v[0], *prior])
-    ukf.P = est.covariance[0].copy()
-    ukf.R = np.diag([cfg.meas_std_s**2, cfg.meas_std_v**2])
-    xs, ps = [ukf.x.copy()], [ukf.P.copy()]
-    for k in range(1, len(series)):
-        dt = float(est.dt[k])
-        b = np.array([0.5 * dt * dt, dt])
-        q = np.zeros((5, 5))
-        q[:2, :2] = cfg.accel_noise_std**2 * np.outer(b, b)
-        q[2, 2], q[3, 3], q[4, 4] = (cfg.noise_r0**2 * dt, cfg.noise_r1**2 * dt, cfg.noise_r2**2 * dt)
-        ukf.Q = q
-        decoupled = bool(est.decoupled[k])
-        rbar = tuple(xs[-1][2:]) if decoupled else None
-        ukf.predict(dt=dt, u=est.input_effort[k], g=est.track_force[k - 1], rbar=rbar, midpoint=mid)
-        if cfg.update_uses_process_noise and cfg.accel_noise_std > 0:
-            ukf.sigmas_f = pts.sigma_points(ukf.x, ukf.P)  # the gain sees Q
-        x_prior, p_prior = ukf.x.copy(), ukf.P.copy()
-        if series.s_measured[k]:
-            ukf.update(np.array([series.s[k], series.v[k]]))
-        else:
-            ukf.update(np.array([series.v[k]]), R=np.array([[cfg.meas_std_v**2]]), hx=lambda x: x[1:2])
-        if decoupled:  # Schmidt (consider) update: r and P_rr keep their prior values
-            ukf.x[2:] = x_prior[2:]
-            ukf.P[2:, 2:] = p_prior[2:, 2:]
-        ukf.x[1:] = np.maximum(ukf.x[1:], 0.0)  # nonnegative = "clip"
-        xs.append(ukf.x.copy())
-        ps.append(ukf.P.copy())
-    return np.array(xs), np.array(ps)
 
 
 def cov_relative(a, b):

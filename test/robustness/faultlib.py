@@ -26,6 +26,7 @@ import numpy as np
 import yaml
 
 from train_calib import bagio
+from train_calib.estimation import UKFConfig
 from train_calib.geodesy import LocalFrame
 from train_calib.physics import KMH
 from train_calib.track import Track, load_track
@@ -71,6 +72,10 @@ def write_track(path: Path, length_m: float = LINE_M) -> Path:
 # -- physics ----------------------------------------------------------------------------------------
 
 STAND, TRACTION, HOLD, COAST, BRAKE = range(5)
+
+
+CONVERGING = UKFConfig.converging()
+"""The filter the fault tests run: it learns r, so it is the one a fault could spoil."""
 
 
 @dataclass

@@ -16,6 +16,7 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from faultlib import (
+    CONVERGING,
     DEFAULT_SCRIPT,
     GNSS,
     NS,
@@ -26,7 +27,6 @@ from faultlib import (
     deep_size,
     delayed,
     final_difference,
-    make_scenario,
     physical,
     recovery,
     remove,
@@ -41,19 +41,6 @@ from faultlib import (
 from train_calib.estimation import UKFConfig
 from train_calib.ingest import IngestConfig
 from train_calib.pipeline import Pipeline, bag_messages, run_bag
-
-CONVERGING = UKFConfig.converging()
-
-
-@pytest.fixture(scope="module")
-def scenario(tmp_path_factory):
-    return make_scenario(tmp_path_factory.mktemp("scenario"))
-
-
-@pytest.fixture(scope="module")
-def reference(scenario, tmp_path_factory):
-    bag = write_bag(tmp_path_factory.mktemp("reference") / "bag", scenario.events)
-    return run_bag(bag, scenario.track, scenario.train, ukf=CONVERGING)
 
 
 def test_bag_loop_is_a_clock_reset_and_the_second_pass_repeats_the_first(scenario, tmp_path):

@@ -22,6 +22,7 @@ import pytest
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from faultlib import (
     CASES,
+    CONVERGING,
     FAULT_START,
     GNSS,
     NAN,
@@ -33,7 +34,6 @@ from faultlib import (
     FaultCase,
     duplicated,
     final_difference,
-    make_scenario,
     moved_fixes,
     physical,
     recovery,
@@ -46,22 +46,8 @@ from faultlib import (
     write_bag,
 )
 
-from train_calib.estimation import UKFConfig
 from train_calib.ingest import SPEED as SPEED_STREAM
 from train_calib.pipeline import run_bag
-
-CONVERGING = UKFConfig.converging()
-
-
-@pytest.fixture(scope="module")
-def scenario(tmp_path_factory):
-    return make_scenario(tmp_path_factory.mktemp("scenario"))
-
-
-@pytest.fixture(scope="module")
-def reference(scenario, tmp_path_factory):
-    bag = write_bag(tmp_path_factory.mktemp("reference") / "bag", scenario.events)
-    return run_bag(bag, scenario.track, scenario.train, ukf=CONVERGING)
 
 
 def _counts(stats_counters) -> dict[str, dict[str, int]]:

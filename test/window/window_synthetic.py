@@ -7,13 +7,14 @@ integrates the continuous model (RK4, 0.1 s steps) and samples it at 1 Hz (the p
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
+from repo_paths import DATA
 
 from train_calib import physics
 from train_calib.measurement import MeasurementSeries
-from train_calib.train import Davis, TrainSpec
+from train_calib.train import Davis, TrainSpec, load_train
 
 TRUTH = Davis(r0=0.0085, r1=1.5e-4, r2=5.2e-5)  # N/kg: differs from the train file's manufacturer values
 
@@ -34,20 +35,8 @@ REGIME = {"traction": 1, "cruise": 2, "coast": 3, "brake": 4}
 
 
 def train_spec(**changes) -> TrainSpec:
-    base = dict(
-        name="synthetic-emu",
-        mass_t=400.0,
-        rotating_mass_factor=1.06,
-        length_m=100.0,
-        davis=Davis(0.0073, 0.00012, 0.000045),
-        max_tractive_effort=0.9,
-        max_tractive_power=9.5,
-        max_brake_decel=0.66,
-        transmission_efficiency=0.85,
-        tunnel_factor=0.6,
-    )
-    base.update(changes)
-    return TrainSpec(**base)
+    """The VIRM-like train of test/data/small_train.yaml (tunnel factor 0.6, adhesion limit on half the mass)."""
+    return replace(load_train(DATA / "small_train.yaml"), **{"name": "synthetic-emu", "source": "", **changes})
 
 
 def gradient_permille(s):
