@@ -10,12 +10,12 @@ belief over the regimes from sample to sample (restarted by a standstill). ``met
 stateless per-sample rule. A parameter change at run time takes effect at once by building a new classifier:
 with ``hmm`` this restarts the belief (the next sample is classified as the first of a departure).
 ``lag_samples: 1`` publishes each sample's regime when the next estimate has come, revised with it
-(:class:`train_calib.pipeline.RegimeStream`; the message keeps the sample's own stamp).
+(:class:`train_calib.pipeline.RegimeStream`; the message keeps the sample's own stamp and frame_id).
 """
 
 from __future__ import annotations
 
-from collections import Counter
+from collections import Counter, deque
 from typing import Any
 
 from train_calib_msgs.msg import DrivingRegime, ResistanceEstimate
@@ -34,7 +34,7 @@ class RegimeNode(TrainCalibNode):
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(**kwargs)
         self.stream = RegimeStream(self.config(RegimeConfig))
-        self._frame_id = ""
+        self._frame_ids: deque[str] = deque()  # of the samples pushed and not yet published, oldest first
         self._counts: Counter[int] = Counter()
         self._restarts = 0
         self.output(DrivingRegime, REGIME_TOPIC)
@@ -49,13 +49,15 @@ class RegimeNode(TrainCalibNode):
         return self.stream.pending
 
     def _on_estimate(self, msg: ResistanceEstimate) -> None:
-        self._frame_id = msg.header.frame_id
-        self._publish(self.stream.push(regime_input_from_msg(msg)))
+        pairs = self.stream.push(regime_input_from_msg(msg))
+        self._frame_ids.append(msg.header.frame_id)  # after push: a sample it refused is never published
+        self._publish(pairs)
 
     def _publish(self, pairs: list) -> None:
+        """Each pair is the oldest sample pushed and not yet published (RegimeStream releases in order)."""
         for sample, regime in pairs:
             self._counts[regime] += 1
-            self.publish(REGIME_TOPIC, regime_to_cdr(sample, regime, self._frame_id))
+            self.publish(REGIME_TOPIC, regime_to_cdr(sample, regime, self._frame_ids.popleft()))
 
     def end_of_input(self) -> None:
         self._publish(self.stream.flush())
