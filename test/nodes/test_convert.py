@@ -173,6 +173,22 @@ def test_time_and_key_value():
     _same(key_value("a key", "a value"), KeyValue(key="a key", value="a value"))
 
 
+def test_a_message_class_of_another_layout_is_refused_in_one_line():
+    from train_calib.nodes.slots import check_layout
+
+    class Other:  # a generator that keeps the fields elsewhere
+        __slots__ = ("_check_fields", "_extra", "_key")
+        __module__ = "other_msgs.msg"
+
+        @staticmethod
+        def get_fields_and_field_types():
+            return {"key": "string"}
+
+    check_layout(KeyValue)
+    with pytest.raises(ImportError, match=r"^other_msgs.msg.Other: unexpected generated message layout"):
+        check_layout(Other)
+
+
 @pytest.mark.parametrize("frame", ["", "abc", "tunnel_line_37km"])
 def test_window_to_cdr_is_the_message(frame):
     from train_calib_msgs.msg import WindowResistance

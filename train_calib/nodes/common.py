@@ -97,6 +97,7 @@ from ..errors import ConfigError
 from ..params import ParamSet, ParamSpec
 from . import cdr
 from .config import NODE_PARAMS, NodeConfig
+from .slots import bare, check_layout
 
 DIAGNOSTICS_TOPIC = "/diagnostics"
 PROGRESS_TOPIC = "/train_calib/progress"
@@ -115,16 +116,12 @@ ERROR = 2
 _INT64_MAX = 2**63 - 1
 RCLError = _rclpy.RCLError
 
-if set(KeyValue.__slots__) != {"_key", "_value", "_check_fields"}:  # the layout key_value() fills
-    raise ImportError(f"diagnostic_msgs KeyValue: unexpected generated message layout {KeyValue.__slots__}")
-_CHECK_FIELDS = KeyValue()._check_fields  # what the generated constructors set (ROS_PYTHON_CHECK_FIELDS)
-_new = object.__new__
+check_layout(KeyValue)  # the slots key_value() fills
 
 
 def key_value(key: str, value: str) -> KeyValue:
     """A diagnostic_msgs/KeyValue without the generated constructor's cost (a diagnostics array holds dozens)."""
-    kv = _new(KeyValue)
-    kv._check_fields = _CHECK_FIELDS
+    kv = bare(KeyValue)
     kv._key = key
     kv._value = value
     return kv

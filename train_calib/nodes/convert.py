@@ -4,7 +4,7 @@ Readers (``*_from_msg``) are duck-typed, so they also accept rosbags messages de
 
 Writers build the message without its generated ``__init__`` and property setters, which cost several
 microseconds per message (every field set twice, a default sub-message built and thrown away): the instance is
-made with ``object.__new__`` and its slots (``_<field>``, the rosidl layout, checked at import) are filled with
+made with :func:`.slots.bare` and its slots (``_<field>``, the rosidl layout, checked at import) are filled with
 the same values the setters would store. Field checks (``ROS_PYTHON_CHECK_FIELDS=1``) are skipped here as they
 are for the setters by default; the values are converted to the field types exactly as before, so the
 serialized messages are identical.
@@ -29,15 +29,9 @@ from ..estimation.features import Features
 from ..estimation.records import EstimateSample
 from ..measurement import Measurement
 from . import cdr
+from .slots import bare, check_layout
 
 NS = 1_000_000_000
-
-
-def _check_layout(cls: type) -> None:
-    """The rosidl layout the writers fill: one slot ``_<field>`` per field plus ``_check_fields``."""
-    expected = {"_" + name for name in cls.get_fields_and_field_types()} | {"_check_fields"}
-    if set(cls.__slots__) != expected:
-        raise ImportError(f"{cls.__module__}.{cls.__name__}: unexpected generated message layout {cls.__slots__}")
 
 
 _SLOTS: dict[type, list[str]] = {}  # message type -> the slots of its fields after the header (layout checked)
@@ -46,19 +40,17 @@ _SLOTS: dict[type, list[str]] = {}  # message type -> the slots of its fields af
 def _slots_after_header(cls: type) -> list[str]:
     slots = _SLOTS.get(cls)
     if slots is None:
-        _check_layout(cls)
+        check_layout(cls)
         slots = _SLOTS[cls] = [f"_{name}" for name in cls.get_fields_and_field_types()][1:]
     return slots
 
 
 for _cls in (Time, Header):
-    _check_layout(_cls)
+    check_layout(_cls)
 for _cls in (TrackMeasurement, ResistanceEstimate, DrivingRegime):  # this module's writers: checked at import
     _slots_after_header(_cls)
 _MEASUREMENT, _ESTIMATE, _REGIME = (cdr.layout(c) for c in (TrackMeasurement, ResistanceEstimate, DrivingRegime))
 
-_new = object.__new__
-_CHECK_FIELDS = Time()._check_fields  # what the generated constructors set (ROS_PYTHON_CHECK_FIELDS)
 _float64 = np.float64
 
 
@@ -67,8 +59,7 @@ def stamp_to_ns(stamp: Any) -> int:
 
 
 def time_msg(t_ns: int) -> Time:
-    t = _new(Time)
-    t._check_fields = _CHECK_FIELDS
+    t = bare(Time)
     t._sec = int(t_ns // NS)
     t._nanosec = int(t_ns % NS)
     return t
@@ -76,8 +67,7 @@ def time_msg(t_ns: int) -> Time:
 
 def header_msg(t_ns: int, frame_id: str) -> Header:
     """A std_msgs/Header: stamp from ns, frame_id."""
-    h = _new(Header)
-    h._check_fields = _CHECK_FIELDS
+    h = bare(Header)
     h._stamp = time_msg(t_ns)
     h._frame_id = frame_id
     return h
@@ -86,8 +76,7 @@ def header_msg(t_ns: int, frame_id: str) -> Header:
 def message_with_header(cls: type, t_ns: int, frame_id: str, values: tuple) -> Any:
     """A message of `cls` (a header first) with this header and these values of the fields after it, in message
     order and field types (lists for arrays)."""
-    msg = _new(cls)
-    msg._check_fields = _CHECK_FIELDS
+    msg = bare(cls)
     msg._header = header_msg(t_ns, frame_id)
     for slot, value in zip(_slots_after_header(cls), values, strict=True):
         setattr(msg, slot, np.array(value, dtype=_float64) if type(value) is list else value)
