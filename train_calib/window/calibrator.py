@@ -30,6 +30,9 @@ class _RowBuffer:
         self.start = self.stop = 0
         self.negatives = 0
         self.below_zero = 0  # rows with upper_tol < 0 (infeasible at r = 0)
+        # (end_ns, v) of the rows that are the fastest (slowest) of the rows after them: [0] is the window's
+        self.fastest: deque[tuple[int, float]] = deque()
+        self.slowest: deque[tuple[int, float]] = deque()
 
     _NAMES = ("end_ns", "xy", "upper", "upper_tol", "negative")
 
@@ -37,6 +40,8 @@ class _RowBuffer:
         self.start = self.stop = 0
         self.negatives = 0
         self.below_zero = 0
+        self.fastest.clear()
+        self.slowest.clear()
 
     def __len__(self) -> int:
         return self.stop - self.start
@@ -45,11 +50,11 @@ class _RowBuffer:
         """Add a row (x0, x1, x2, y, upper, v, ...) as StepModel.row gives it (v == x1 there)."""
         if self.stop == len(self.upper):
             live = {name: getattr(self, name)[self.start : self.stop].copy() for name in self._NAMES}
-            counts = self.negatives, self.below_zero
+            kept = self.negatives, self.below_zero, self.fastest, self.slowest
             if self.start == 0:
                 self._alloc(2 * len(self.upper))
             self.start, self.stop = 0, len(live["upper"])
-            self.negatives, self.below_zero = counts
+            self.negatives, self.below_zero, self.fastest, self.slowest = kept
             for name, values in live.items():
                 getattr(self, name)[: self.stop] = values
         i = self.stop
@@ -64,6 +69,13 @@ class _RowBuffer:
         self.negative[i] = negative
         self.negatives += negative
         self.stop += 1
+        fastest, slowest = self.fastest, self.slowest
+        while fastest and fastest[-1][1] <= x1:
+            fastest.pop()
+        fastest.append((end_ns, x1))
+        while slowest and slowest[-1][1] >= x1:
+            slowest.pop()
+        slowest.append((end_ns, x1))
 
     def expire(self, min_ns: int) -> None:
         """Drop the steps that end at or before min_ns (stamps in ns, so windows of whole seconds are exact)."""
@@ -71,6 +83,16 @@ class _RowBuffer:
             self.negatives -= bool(self.negative[self.start])
             self.below_zero -= bool(self.upper_tol[self.start] < 0.0)
             self.start += 1
+        fastest, slowest = self.fastest, self.slowest
+        while fastest and fastest[0][0] <= min_ns:
+            fastest.popleft()
+        while slowest and slowest[0][0] <= min_ns:
+            slowest.popleft()
+
+    @property
+    def speed_span(self) -> float:
+        """max(v) - min(v) of the rows in the window, m/s (0 without rows)."""
+        return self.fastest[0][1] - self.slowest[0][1] if self.fastest else 0.0
 
     def view(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """[x y] (n, 4), upper, upper_tol, v of the rows in the window."""
@@ -231,7 +253,7 @@ class WindowCalibrator:
             return fit_design(xy[:, :3], xy[:, 3], upper, v, regime, self.train, self.config, **context)
         rows = self._rows
         return self._fit(xy, upper, upper_tol, v, regime, nonnegative=not rows.negatives, below_zero=rows.below_zero,
-                         **context)  # fmt: skip
+                         span=rows.speed_span, **context)  # fmt: skip
 
 
 def _finite(m: Measurement) -> bool:

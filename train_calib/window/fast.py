@@ -68,21 +68,23 @@ class FastFit:
         previous: WindowFit | None,
         nonnegative: bool = True,
         below_zero: int | None = None,
+        span: float | None = None,
     ) -> WindowFit:
         """The rows used: xy (n, 4) = [x y], upper (N/kg), upper_tol = upper + 1e-12 max(1, |upper|), v (m/s).
 
-        nonnegative: every entry of x is >= 0 (the caller knows it from the rows); below_zero: the number of
-        rows with upper_tol < 0 if the caller keeps it (else counted here).
+        x's first column is 1 and its second v (as StepModel.row gives them). nonnegative: every entry of x is
+        >= 0 (the caller knows it from the rows); below_zero: the number of rows with upper_tol < 0, span:
+        max(v) - min(v), if the caller keeps them (else computed here).
         """
         context = {"stamp_ns": stamp_ns, "run_id": run_id, "previous": previous}
         use_fast = self.enabled and nonnegative
-        fit = self._fast(xy, upper, upper_tol, v, regime, context, below_zero) if use_fast else None
+        fit = self._fast(xy, upper, upper_tol, v, regime, context, below_zero, span) if use_fast else None
         if fit is None:
             self.reference += 1
             fit = fit_design(xy[:, :3], xy[:, 3], upper, v, regime, self.train, self.config, **context)
         return fit
 
-    def _fast(self, xy, upper, upper_tol, v, regime, context, below_zero) -> WindowFit | None:
+    def _fast(self, xy, upper, upper_tol, v, regime, context, below_zero, span) -> WindowFit | None:
         n = len(v)
         if n < 4:
             return None
@@ -132,9 +134,11 @@ class FastFit:
         e0, e1, e2 = a0 * f0 + a1 * f1 + a2 * f2 - c0, b1 * f1 + b2 * f2 - c1, d2 * f2 - c2
         squares = e0 * e0 + e1 * e1 + e2 * e2 + rho * rho
         relative_error = self._relative_error(r, scale, math.sqrt(squares / (n - 3)))
-        span = float(v.max() - v.min())
+        if span is None:
+            span = float(v.max() - v.min())
         reason = ill_posed_reason(n, span, condition, self.config, relative_error)
-        return make_fit(self.train, self.config, n=n, regime=regime, span=span, mean_speed=float(v.sum()) / n,
+        # R's first row is q0^T [x y] with q0 = -+ ones / sqrt(n) (the first column of x is 1): r01 / r00 = mean(v)
+        return make_fit(self.train, self.config, n=n, regime=regime, span=span, mean_speed=r01 / r00,
                         condition=condition, estimate=(theta[0], theta[1], theta[2]),
                         objective=math.sqrt(squares / n), relative_error=relative_error, dropped=dropped,
                         reason=reason, **context)  # fmt: skip
@@ -190,14 +194,34 @@ class FastFit:
 
 
 def _scaled_condition(r) -> float:
-    """2-norm condition number of R3 with unit columns (= that of x with unit columns, Belsley's)."""
+    """2-norm condition number of R3 with unit columns B (= that of x with unit columns, Belsley's).
+
+    From the eigenvalues l1 >= l2 >= l3 of G = B^T B (unit diagonal): l1 in closed form (the trigonometric
+    solution of the cubic, accurate to round-off for the largest), then l2 + l3 = 3 - l1 and l2 l3 = det(B)^2 / l1
+    (det B = the product of the diagonal: no cancellation), so l3 is as accurate as l2, to eps l1 / l2. Where
+    that bound or the closed form's own (l1 near l2) is loose, the singular values by LAPACK (dgesdd).
+    """
     (r00, r01, r02, _), (_, r11, r12, _), (_, _, r22, _) = r[0], r[1], r[2]
     n0 = abs(r00)
     n1 = math.sqrt(r01 * r01 + r11 * r11)
     n2 = math.sqrt(r02 * r02 + r12 * r12 + r22 * r22)
     if n0 == 0.0 or n1 == 0.0 or n2 == 0.0:
         return math.inf
-    b = np.array(((r00 / n0, r01 / n1, r02 / n2), (0.0, r11 / n1, r12 / n2), (0.0, 0.0, r22 / n2)))
+    b01, b11, b02, b12, b22 = r01 / n1, r11 / n1, r02 / n2, r12 / n2, r22 / n2
+    sign = 1.0 if r00 > 0.0 else -1.0  # B's first column is (sign, 0, 0)
+    g01, g02, g12 = sign * b01, sign * b02, b01 * b02 + b11 * b12  # the off-diagonal of G
+    det2 = (b11 * b22) ** 2  # det(G) = det(B)^2
+    p2 = (g01 * g01 + g02 * g02 + g12 * g12) / 3.0
+    if p2 > 0.0 and det2 > 0.0:
+        p = math.sqrt(p2)
+        q = g01 * g02 * g12 / (p2 * p)  # det((G - I) / p) / 2
+        l1 = 1.0 + 2.0 * p * math.cos(math.acos(-1.0 if q < -1.0 else 1.0 if q > 1.0 else q) / 3.0)
+        rest = 3.0 - l1  # l2 + l3
+        disc = rest * rest - 4.0 * det2 / l1
+        l2 = 0.5 * (rest + math.sqrt(disc if disc > 0.0 else 0.0))
+        if 1e-4 * l1 <= l2 <= 0.5 * l1:
+            return math.sqrt(l1 * l2 / det2 * l1)  # sqrt(l1 / l3), l3 = det2 / (l1 l2)
+    b = np.array(((sign, b01, b02), (0.0, b11, b12), (0.0, 0.0, b22)))
     _, sv, _, info = lapack.dgesdd(b, compute_uv=0)
     if info != 0:
         return math.nan
