@@ -289,7 +289,8 @@ def soak_summary(res: dict, hours: float) -> list[dict]:
             f"<= +{100 * LATENCY_GROWTH_MAX:.0f} % (work per sample not growing)",
             bool(len(cpu) > 2 and cpu_growth <= LATENCY_GROWTH_MAX),
             note="CPU time of this process between the sample's publication and its regime's arrival: the work "
-                 "done for it, insensitive to other jobs on the machine; Theil-Sen trend"),
+                 "done for it, less sensitive to other jobs than wall time but not immune (a busy SMT sibling or "
+                 "shared cache slows it too; see soak.py); Theil-Sen trend"),
         row("speed sample -> /train_calib/regime at rate 0, wall time: trend of the hourly p50 over the run",
             f"{100 * growth:+.0f} % (last hour p50 {last['p50_ms']:.2f} ms, p99 {last['p99_ms']:.2f} ms)",
             "-", None, f"first hour p50 {first['p50_ms']:.2f} ms, p99 {first['p99_ms']:.2f} ms",
