@@ -48,7 +48,7 @@ from __future__ import annotations
 import bisect
 import math
 from collections import Counter, deque
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -470,6 +470,7 @@ class Ingest:
         self.track = track
         self.train = train
         self.config = config or IngestConfig()
+        self._derive_ns(self.config)
         self._start_s = self._station_s(self.config)
         self._terms = _TrackTerms(track, train.length_m)
         self._enu = _Enu(track)
@@ -535,6 +536,16 @@ class Ingest:
         if config.delay_window != self.config.delay_window:
             self._delay.time_constant_s = config.delay_window
         self.config = config
+        self._derive_ns(config)
+
+    def _derive_ns(self, config: IngestConfig) -> None:
+        """The config's times in ns that the per-input checks compare with, computed once per config."""
+        self._age_ns = config.max_sample_age * NS
+        self._age_ns_int = int(config.max_sample_age * NS)
+        self._keep_ns = int(config.pair_tolerance * NS) + NS  # _trim keeps this much before the horizon
+        self._pair_ns = config.pair_tolerance * NS
+        self._power_pair_ns = config.power_pair_tolerance * NS
+        self._pairing_wait_ns = config.max_pairing_wait * NS
 
     # -- public API ----------------------------------------------------------------------------
     @property
@@ -678,15 +689,16 @@ class Ingest:
         return out
 
     # -- validation ------------------------------------------------------------------------------
-    def _check_time(self, stream: str, t_ns: int, recent: Iterable[int]) -> tuple[str | None, bool]:
+    def _check_time(self, stream: str, t_ns: int, recent: Callable[[], Iterable[int]]) -> tuple[str | None, bool]:
         """Staleness, duplicates and ordering: (drop reason or None, late). A sample that passes in order
         advances its stream's latest stamp; a late one (older than its stream's latest, newer than the last
-        released speed sample) passes with late True and is inserted in order."""
-        if self._newest_ns is not None and (self._newest_ns - t_ns) > self.config.max_sample_age * NS:
+        released speed sample) passes with late True and is inserted in order. ``recent()``: the stream's
+        recent stamps (read only for a sample behind its stream's latest)."""
+        if self._newest_ns is not None and (self._newest_ns - t_ns) > self._age_ns:
             return STALE, False
         last = self._latest.get(stream)
         if last is not None and t_ns <= last:
-            if t_ns == last or t_ns in recent:
+            if t_ns == last or t_ns in recent():
                 return DUPLICATE, False
             if self._released_t is not None and t_ns <= self._released_t:
                 return OUT_OF_ORDER, False
@@ -699,8 +711,17 @@ class Ingest:
             self._newest_ns = t_ns
         return None, False
 
+    def _fix_stamps(self) -> Iterator[int]:
+        return (f.t_ns for f in self._fixes)
+
+    def _speed_stamps(self) -> Iterator[int]:
+        return (sp.stamp_ns for queue in (self._speeds, self._pending) for sp in queue)
+
+    def _power_stamps(self) -> Iterator[int]:
+        return (p.stamp_ns for p in self._powers)
+
     def _check_fix(self, fix: GnssFix) -> tuple[str | None, bool]:
-        reason, late = self._check_time(GNSS, fix.stamp_ns, (f.t_ns for f in self._fixes))
+        reason, late = self._check_time(GNSS, fix.stamp_ns, self._fix_stamps)
         if reason is not None:
             return reason, late
         if fix.status < 0:
@@ -710,8 +731,7 @@ class Ingest:
         return None, late
 
     def _check_speed(self, sample: SpeedSample) -> tuple[str | None, bool]:
-        recent = (sp.stamp_ns for queue in (self._speeds, self._pending) for sp in queue)  # read only when late
-        reason, late = self._check_time(SPEED, sample.stamp_ns, recent)
+        reason, late = self._check_time(SPEED, sample.stamp_ns, self._speed_stamps)
         if reason is not None:
             return reason, late
         v = sample.v
@@ -802,7 +822,7 @@ class Ingest:
         return best
 
     def _check_power(self, sample: PowerSample) -> tuple[str | None, bool]:
-        reason, late = self._check_time(POWER, sample.stamp_ns, (p.stamp_ns for p in self._powers))
+        reason, late = self._check_time(POWER, sample.stamp_ns, self._power_stamps)
         if reason is not None:
             return reason, late
         if not (math.isfinite(sample.consumed) and math.isfinite(sample.regenerated)):
@@ -879,7 +899,7 @@ class Ingest:
         """The speed to dead-reckon towards t: the last validated speed sample; when it is older than
         ``max_sample_age`` (the speed stream is silent), the speed of the last accepted fixes; else the anchor's."""
         last = self._last_speed
-        if last is not None and abs(t_ns - last.stamp_ns) <= self.config.max_sample_age * NS:
+        if last is not None and abs(t_ns - last.stamp_ns) <= self._age_ns:
             return last.v
         v_fix = self._fix_speed()
         if v_fix is not None:
@@ -981,7 +1001,7 @@ class Ingest:
         """
         assert self._newest_ns is not None
         t = sample.stamp_ns
-        if self._newest_ns - t >= self.config.max_pairing_wait * NS:
+        if self._newest_ns - t >= self._pairing_wait_ns:
             return True
         if not self._stream_ready(GNSS, t, required=True):
             return False
@@ -1007,15 +1027,15 @@ class Ingest:
 
     def _trim(self) -> None:
         """Forget fixes and power samples no pending or future speed sample can pair with."""
-        pending, cfg = self._pending, self.config
+        pending = self._pending
         horizon = pending[0].stamp_ns if pending else self._latest.get(SPEED)
         newest = self._newest_ns
         if newest is not None:  # a speed stream silent for long must not let them pile up
-            oldest_useful = newest - int(cfg.max_sample_age * NS)
-            horizon = oldest_useful if horizon is None else max(horizon, oldest_useful)
+            oldest_useful = newest - self._age_ns_int
+            horizon = oldest_useful if horizon is None or oldest_useful > horizon else horizon
         if horizon is None:
             return
-        keep_from = horizon - int(cfg.pair_tolerance * NS) - NS
+        keep_from = horizon - self._keep_ns
         fixes, powers, speeds = self._fixes, self._powers, self._speeds
         while len(fixes) > 1 and fixes[1].t_ns <= keep_from:
             fixes.popleft()
@@ -1025,7 +1045,7 @@ class Ingest:
             speeds.popleft()
 
     def _nearest_fix(self, t_ns: int) -> _Fix | None:
-        best, best_dt = None, self.config.pair_tolerance * NS
+        best, best_dt = None, self._pair_ns
         for fix in self._fixes:
             dt = abs(fix.t_ns - t_ns)
             if dt <= best_dt:
@@ -1049,7 +1069,7 @@ class Ingest:
         return before.v + w * (after.v - before.v)
 
     def _nearest_power(self, t_ns: int) -> PowerSample | None:
-        best, best_dt = None, self.config.power_pair_tolerance * NS
+        best, best_dt = None, self._power_pair_ns
         for p in self._powers:
             dt = abs(p.stamp_ns - t_ns)
             if dt <= best_dt:

@@ -127,28 +127,17 @@ class DelayEstimator:
             if residual * residual > 25.0 * self._sigma2 * (1.0 + quad):
                 self.outliers += 1
                 return
-        a, b = self._a, self._b
+        a00, a01, a02, a11, a12, a22 = self._a
+        b0, b1, b2 = self._b
+        yy, w = self._yy, self._w
         if self._t_ns is not None:
             decay = math.exp(-max(t_ns - self._t_ns, 0) / NS / self.time_constant_s)
-            for k in range(6):
-                a[k] *= decay
-            b[0] *= decay
-            b[1] *= decay
-            b[2] *= decay
-            self._yy *= decay
-            self._w *= decay
+            a00, a01, a02, a11, a12, a22 = a00 * decay, a01 * decay, a02 * decay, a11 * decay, a12 * decay, a22 * decay
+            b0, b1, b2, yy, w = b0 * decay, b1 * decay, b2 * decay, yy * decay, w * decay
         self._t_ns = t_ns
-        a[0] += 1.0
-        a[1] += v
-        a[2] += x2
-        a[3] += v * v
-        a[4] += v * x2
-        a[5] += x2 * x2
-        b[0] += y
-        b[1] += v * y
-        b[2] += x2 * y
-        self._yy += y * y
-        self._w += 1.0
+        self._a = [a00 + 1.0, a01 + v, a02 + x2, a11 + v * v, a12 + v * x2, a22 + x2 * x2]
+        self._b = [b0 + y, b1 + v * y, b2 + x2 * y]
+        self._yy, self._w = yy + y * y, w + 1.0
         self._solve()
 
     def _solve(self) -> None:
