@@ -65,7 +65,7 @@ BENCHES: tuple[Bench, ...] = (
                 "UKF), and the whole core (UKF + HMM regimes + features). Paper (Cunillera et al. 2022): under a "
                 "second per trajectory."),
     Bench("graph", "3. Node graph: throughput, latency, RSS", "bench_graph.py",
-          ("--repeat", "4", "--latency-seconds", "60"), ("--repeat", "1", "--latency-seconds", "10", "--no-single"),
+          ("--repeat", "6", "--latency-seconds", "60"), ("--repeat", "1", "--latency-seconds", "10", "--no-single"),
           900, "bench_graph.json",
           about="Replay at rate 0 of bags/tunnel_line_37km_1s_00 (1 Hz GNSS, speed and traction power; 3 inputs per "
                 "speed sample) through the nodes, against a bare rclpy relay chain with the same hops, topics, QoS "
