@@ -18,7 +18,8 @@ _IU = np.triu_indices(5)
 
 def unpack(packed) -> np.ndarray:
     """(..., 15) packed upper triangle -> (..., 5, 5) symmetric matrix."""
-    return np.asarray(packed, dtype=float)[..., UPPER_INDEX]
+    a = np.asarray(packed, dtype=float)
+    return a[UPPER_INDEX] if a.ndim == 1 else a[..., UPPER_INDEX]  # one matrix (per sample): no Ellipsis, 2x faster
 
 
 def pack(matrix: np.ndarray) -> tuple[float, ...]:

@@ -154,7 +154,7 @@ def _estimate_values(e: EstimateSample) -> tuple:
         float(e.r0),
         float(e.r1),
         float(e.r2),
-        np.asarray(e.covariance, dtype=_float64).reshape(25).tolist(),
+        np.asarray(e.covariance, dtype=_float64).ravel().tolist(),  # row-major 5x5 -> 25
         float(e.effort),
         float(e.acceleration),
         float(e.resistance),
