@@ -150,7 +150,7 @@ def test_regime_to_msg_and_back():
     _same(msg, reference)
     _same_cdr(regime_to_cdr(sample, np.int64(2), "x"), reference)
     back = regime_input_from_msg(msg)
-    assert back == RegimeInput(sample.stamp_ns, 1, 5.0, 6.0, 0.2, -0.1, v_measured=6.1)  # no resistance in it
+    assert back == RegimeInput(sample.stamp_ns, 1, 5.0, 6.0, 0.2, -0.1, v_measured=6.1, frame_id="x")  # no resistance
 
 
 def test_a_message_recorded_without_the_measured_speed_reads_as_nan():

@@ -182,7 +182,8 @@ class RegimeInput:
     and :func:`train_calib.pipeline.classify_estimate`).
 
     ``effort_known``, ``resistance`` and ``track_force`` come from a ResistanceEstimate (regime_node); a
-    DrivingRegime (feature_node) does not carry them and leaves them None.
+    DrivingRegime (feature_node) does not carry them and leaves them None. ``frame_id``: the message header's, so
+    that a sample published later (regime_node's ``lag_samples``) keeps its own.
     """
 
     stamp_ns: int
@@ -195,6 +196,7 @@ class RegimeInput:
     resistance: float | None = None  # r(v) at the filtered speed, N/kg
     track_force: float | None = None  # g(s), N/kg
     v_measured: float = math.nan  # the speed measurement, m/s (NaN: a message recorded without it)
+    frame_id: str = ""
 
 
 def regime_input_from_msg(msg: Any) -> RegimeInput:
@@ -213,10 +215,11 @@ def regime_input_from_msg(msg: Any) -> RegimeInput:
             float(msg.resistance),
             float(msg.track_force),
             v_measured,
+            msg.header.frame_id,
         )
     return RegimeInput(
         t_ns, int(msg.run_id), float(msg.s), float(msg.v), float(msg.effort), float(msg.acceleration),
-        v_measured=v_measured,
+        v_measured=v_measured, frame_id=msg.header.frame_id,
     )  # fmt: skip
 
 

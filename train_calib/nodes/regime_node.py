@@ -15,7 +15,7 @@ with ``hmm`` this restarts the belief (the next sample is classified as the firs
 
 from __future__ import annotations
 
-from collections import Counter, deque
+from collections import Counter
 from typing import Any
 
 from train_calib_msgs.msg import DrivingRegime, ResistanceEstimate
@@ -34,7 +34,6 @@ class RegimeNode(TrainCalibNode):
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(**kwargs)
         self.stream = RegimeStream(self.config(RegimeConfig))
-        self._frame_ids: deque[str] = deque()  # of the samples pushed and not yet published, oldest first
         self._counts: Counter[int] = Counter()
         self._restarts = 0
         self.output(DrivingRegime, REGIME_TOPIC)
@@ -49,15 +48,12 @@ class RegimeNode(TrainCalibNode):
         return self.stream.pending
 
     def _on_estimate(self, msg: ResistanceEstimate) -> None:
-        pairs = self.stream.push(regime_input_from_msg(msg))
-        self._frame_ids.append(msg.header.frame_id)  # after push: a sample it refused is never published
-        self._publish(pairs)
+        self._publish(self.stream.push(regime_input_from_msg(msg)))
 
     def _publish(self, pairs: list) -> None:
-        """Each pair is the oldest sample pushed and not yet published (RegimeStream releases in order)."""
         for sample, regime in pairs:
             self._counts[regime] += 1
-            self.publish(REGIME_TOPIC, regime_to_cdr(sample, regime, self._frame_ids.popleft()))
+            self.publish(REGIME_TOPIC, regime_to_cdr(sample, regime, sample.frame_id))
 
     def end_of_input(self) -> None:
         self._publish(self.stream.flush())
