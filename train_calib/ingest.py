@@ -658,7 +658,7 @@ class Ingest:
         A single stream behind the others (its clock is off) never resets: its samples are dropped, counted."""
         cfg = self.config
         behind = self._behind
-        age_ns = cfg.max_sample_age * NS
+        age_ns = self._age_ns
         t = event.stamp_ns
         if behind:
             same = [e.stamp_ns for s, e, _ in behind if s == stream]
