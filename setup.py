@@ -3,7 +3,7 @@
 from glob import glob
 from pathlib import Path
 
-from setuptools import find_packages, setup
+from setuptools import Extension, find_packages, setup
 
 PACKAGE = "train_calib"
 
@@ -29,10 +29,20 @@ def _tree(top: str) -> list[tuple[str, list[str]]]:
     return entries
 
 
+# The window fit's C kernel (train_calib/window/_kernel.c): optional, the pure-Python path runs without a compiler.
+KERNEL = Extension(
+    f"{PACKAGE}.window._kernel",
+    [f"{PACKAGE}/window/_kernel.c"],
+    extra_compile_args=["-O2", "-std=c99", "-Wall", "-Wextra"],
+    optional=True,
+)
+
+
 setup(
     name=PACKAGE,
     version="0.1.0",
     packages=find_packages(include=[PACKAGE, f"{PACKAGE}.*"]),
+    ext_modules=[KERNEL],
     python_requires=">=3.10",
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
@@ -42,7 +52,7 @@ setup(
         *_tree("bags"),
     ],
     install_requires=["setuptools"],
-    zip_safe=True,
+    zip_safe=False,
     maintainer="train_calib maintainers",
     maintainer_email="train-calib@example.org",
     description="Real-time train motion model calibration (UKF, regimes, features) for ROS 2",

@@ -52,6 +52,7 @@ from train_calib.window import (
     summarize_by_regime,
 )
 from train_calib.window.evaluation import resistance_at, series_rows, step_errors, windowed_thetas
+from train_calib.window.fast import KERNEL_AVAILABLE
 from train_calib.window.fit import fit_rows
 
 OUT = Path(__file__).resolve().parent / "out"
@@ -160,6 +161,7 @@ def timing(args) -> dict:
             )
     samples = [series[i] for i in range(len(series))]
     per_sample = _streaming_times(train, samples, fast=True)
+    python_per_sample = _streaming_times(train, samples, fast=True, compiled=False)
     reference_per_sample = _streaming_times(train, samples, fast=False)
     print(f"machine: {machine()}")
     print(
@@ -182,7 +184,12 @@ def timing(args) -> dict:
             f"| {r['exact_worse_than_multistart']} of {r['multistart_windows']} "
             f"| {r['median_gap']:.2e} / {r['max_gap']:.2e} |"
         )
-    for name, times in (("fast path", per_sample), ("reference solver (fast=False)", reference_per_sample)):
+    streams = (
+        ("fast path (C kernel)" if KERNEL_AVAILABLE else "fast path (no C kernel: Python)", per_sample),
+        ("fast path, Python only (compiled=False)", python_per_sample),
+        ("reference solver (fast=False)", reference_per_sample),
+    )
+    for name, times in streams:
         print(
             f"\nstreaming WindowCalibrator.update, {name} (default config, {len(samples)} samples): median "
             f"{1e6 * statistics.median(times):.0f} us, mean {1e6 * statistics.fmean(times):.0f} us, "
@@ -205,20 +212,22 @@ def timing(args) -> dict:
         )  # fmt: skip
     upd = 1e3 * statistics.median(per_sample)
     ref = 1e3 * statistics.median(reference_per_sample)
+    python = 1e3 * statistics.median(python_per_sample)
     summary.append(
         row("streaming WindowCalibrator.update (default: RMSE, 60 s), per sample", f"{upd:.3f} ms",
             f"< {TARGET_MS:g} ms", upd < TARGET_MS, "paper 6.83 s (SAE, 10 s)", 6830.0 / upd,
             speed_text(6830.0 / upd), note=f"p95 {1e3 * float(np.percentile(per_sample, 95)):.3f} ms, mean "
-                f"{1e3 * statistics.fmean(per_sample):.3f} ms; reference solver {ref:.2f} ms")
+                f"{1e3 * statistics.fmean(per_sample):.3f} ms; C kernel {'on' if KERNEL_AVAILABLE else 'not built'}; "
+                f"Python path {python:.3f} ms; reference solver {ref:.2f} ms")
     )  # fmt: skip
     print_summary(summary)
-    return {"machine": machine(), "cases": results, "update_median_ms": upd, "update_reference_median_ms": ref,
-            "summary": summary}  # fmt: skip
+    return {"machine": machine(), "cases": results, "update_median_ms": upd, "update_python_median_ms": python,
+            "update_reference_median_ms": ref, "kernel": KERNEL_AVAILABLE, "summary": summary}  # fmt: skip
 
 
-def _streaming_times(train, samples, fast: bool) -> list[float]:
+def _streaming_times(train, samples, fast: bool, compiled: bool = True) -> list[float]:
     """Wall time of each WindowCalibrator.update over the samples (default config), s."""
-    calibrator = WindowCalibrator(train, WindowConfig(), fast=fast)
+    calibrator = WindowCalibrator(train, WindowConfig(), fast=fast, compiled=compiled)
     times = []
     for m in samples:
         t0 = time.perf_counter()

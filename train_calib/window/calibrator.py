@@ -155,12 +155,16 @@ class WindowCalibrator:
     runs (same train). ``counts`` tallies samples and fits by outcome for diagnostics.
 
     fast: the RMSE fit from the window's QR factor (:mod:`.fast`, equal to the reference to round-off);
-    False: every window by the reference solver (``fit_design``).
+    False: every window by the reference solver (``fit_design``). compiled: that fit by its C kernel
+    where the package has it (False: its Python path only; same results to round-off).
     """
 
-    def __init__(self, train: TrainSpec, config: WindowConfig | None = None, fast: bool = True) -> None:
+    def __init__(
+        self, train: TrainSpec, config: WindowConfig | None = None, fast: bool = True, compiled: bool = True
+    ) -> None:
         self.train = train
         self.fast = fast
+        self.compiled = compiled
         self.counts: Counter[str] = Counter()
         self.last_fit: WindowFit | None = None
         self._origin_ns: int | None = None
@@ -170,7 +174,7 @@ class WindowCalibrator:
         """New settings: the window restarts (its steps depend on them); published values are kept."""
         self.config = config
         self._step = StepModel(self.train, config)
-        self._fit = FastFit(self.train, config)
+        self._fit = FastFit(self.train, config, self.compiled)
         self._rows = _RowBuffer(max(16, int(2 * config.window_length) + 4))
         self._regimes = _RegimeTally()
         self._window_ns = round(config.window_length * 1e9)

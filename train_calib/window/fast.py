@@ -13,6 +13,11 @@ Whatever this path does not cover is left to the reference (``fit_design``: the 
 construction): SAE, fewer than 4 rows, infinite bounds, negative design entries, a condition number
 above ``MAX_CONDITION`` (near rank deficiency: the exact solution is not unique, the reference picks
 one), or any numerical doubt. Agreement with the reference: test/window/test_window_fast.py.
+
+The common case runs in C (``_kernel.c``: the same QR, active sets, condition number and standard
+errors in the same order of operations, no interpreter per step); the windows it leaves (a binding
+eq. 6/7 row, or any of the cases above) take the Python path below, which is also the whole path where
+the package was installed without a C compiler. Agreement of the two: test/window/test_window_kernel.py.
 """
 
 from __future__ import annotations
@@ -36,12 +41,22 @@ Pattern = tuple[int, int, int]
 """Active set of the bounds: per variable -1 at the lower bound, 0 free, 1 at the upper bound."""
 
 PATTERNS: tuple[Pattern, ...] = tuple(product((0, -1, 1), repeat=3))  # type: ignore[assignment]
+CODES = {p: 9 * (p[0] + 1) + 3 * (p[1] + 1) + (p[2] + 1) for p in PATTERNS}
+"""The kernel's code of each active set."""
+PATTERNS_BY_CODE = {code: p for p, code in CODES.items()}
+
+try:
+    from . import _kernel  # the C kernel of this path (setup.py builds it where a C compiler is found)
+except ImportError:  # pragma: no cover - built without a compiler: the Python path alone
+    _kernel = None
+
+KERNEL_AVAILABLE = _kernel is not None
 
 
 class FastFit:
     """Fit of one window of rows for a (train, config); ``reference`` counts the windows left to fit_design."""
 
-    def __init__(self, train: TrainSpec, config: WindowConfig) -> None:
+    def __init__(self, train: TrainSpec, config: WindowConfig, compiled: bool = True) -> None:
         self.train, self.config = train, config
         bounds = config.specific_bounds
         self.lo = [b[0] for b in bounds]
@@ -52,7 +67,11 @@ class FastFit:
         self.speeds = speeds.tolist()
         self.davis = np.asarray(train.davis(speeds), dtype=float).tolist()
         self.pattern: Pattern = (0, 0, 0)
+        # compiled: the window's numbers by the C kernel (status 1 there: by _numbers, as without it)
+        self.compiled = compiled and KERNEL_AVAILABLE and self.enabled
+        self._params = np.array([*self.lo, *self.hi, MAX_CONDITION, len(self.speeds), *self.speeds, *self.davis])
         self.reference = 0
+        self.kernel_windows = 0  # windows fitted by the C kernel
         self.constrained = 0  # windows solved by the LDP (an eq. 6/7 row binds)
 
     def __call__(
@@ -85,7 +104,39 @@ class FastFit:
         return fit
 
     def _fast(self, xy, upper, upper_tol, v, regime, context, below_zero, span) -> WindowFit | None:
+        numbers = self._compiled(xy, upper_tol, below_zero) if self.compiled else None
+        if numbers is None:
+            numbers = self._numbers(xy, upper, upper_tol, below_zero)
+            if numbers is None:
+                return None
+        condition, theta0, theta1, theta2, squares, relative_error, mean_speed, dropped = numbers
         n = len(v)
+        if span is None:
+            span = float(v.max() - v.min())
+        reason = ill_posed_reason(n, span, condition, self.config, relative_error)
+        return make_fit(self.train, self.config, n=n, regime=regime, span=span, mean_speed=mean_speed,
+                        condition=condition, estimate=(theta0, theta1, theta2), objective=math.sqrt(squares / n),
+                        relative_error=relative_error, dropped=dropped, reason=reason, **context)  # fmt: skip
+
+    def _compiled(self, xy, upper_tol, below_zero) -> tuple | None:
+        """The window's numbers by the C kernel; None where it leaves the window to :meth:`_numbers`."""
+        try:
+            status, code, *numbers = _kernel.fit(xy, upper_tol, self._params, CODES[self.pattern],
+                                                 -1 if below_zero is None else below_zero)  # fmt: skip
+        except (BufferError, ValueError):  # not a C-contiguous float64 array: the Python path takes it
+            return None
+        if status:
+            return None
+        self.kernel_windows += 1
+        self.pattern = PATTERNS_BY_CODE[code]
+        return numbers
+
+    def _numbers(self, xy, upper, upper_tol, below_zero) -> tuple | None:
+        """(condition, theta0, theta1, theta2, squares, relative_error, mean_speed, dropped) of the window, N/kg units.
+
+        squares = ||x theta - y||^2; None: the window goes to the reference solver.
+        """
+        n = len(xy)
         if n < 4:
             return None
         qr, _, _, info = lapack.dgeqrf(xy)  # Householder QR is column-scaling invariant: scale R, not x
@@ -134,14 +185,8 @@ class FastFit:
         e0, e1, e2 = a0 * f0 + a1 * f1 + a2 * f2 - c0, b1 * f1 + b2 * f2 - c1, d2 * f2 - c2
         squares = e0 * e0 + e1 * e1 + e2 * e2 + rho * rho
         relative_error = self._relative_error(r, scale, math.sqrt(squares / (n - 3)))
-        if span is None:
-            span = float(v.max() - v.min())
-        reason = ill_posed_reason(n, span, condition, self.config, relative_error)
         # R's first row is q0^T [x y] with q0 = -+ ones / sqrt(n) (the first column of x is 1): r01 / r00 = mean(v)
-        return make_fit(self.train, self.config, n=n, regime=regime, span=span, mean_speed=r01 / r00,
-                        condition=condition, estimate=(theta[0], theta[1], theta[2]),
-                        objective=math.sqrt(squares / n), relative_error=relative_error, dropped=dropped,
-                        reason=reason, **context)  # fmt: skip
+        return condition, theta[0], theta[1], theta[2], squares, relative_error, r01 / r00, dropped
 
     def _box(self, r, lo, hi) -> list[float] | None:
         """min ||R3 phi - c|| over lo <= phi <= hi (scaled variables): the active set meeting the KKT conditions.

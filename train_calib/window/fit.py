@@ -212,36 +212,17 @@ def make_fit(
     estimate None: no solution (no usable step); the published values are then the previous ones.
     """
     mass = train.effective_mass_kg
-    held = (previous.r0, previous.r1, previous.r2) if previous is not None else NAN3
-    common = {
-        "stamp_ns": int(stamp_ns),
-        "run_id": int(run_id),
-        "window_length": float(config.window_length),
-        "sample_count": n,
-        "gof_kind": config.gof_kind,
-        "regime": regime,
-    }
+    if estimate is None or reason:  # publish the last well-posed values
+        r0, r1, r2 = (previous.r0, previous.r1, previous.r2) if previous is not None else NAN3
+    else:
+        r0, r1, r2 = estimate
+    r0, r1, r2 = float(r0), float(r1), float(r2)
+    head = (int(stamp_ns), int(run_id), float(config.window_length), n, config.gof_kind)
+    published = (r0 * mass, r1 * mass, r2 * mass, r0, r1, r2, regime)
     if estimate is None:
-        return WindowFit(gof_value=math.nan, **_published(held, mass), ill_posed=True, speed_span=0.0, reason=reason,
-                         **common)  # fmt: skip
-    return WindowFit(
-        gof_value=objective * mass,
-        **_published(held if reason else estimate, mass),
-        ill_posed=bool(reason),
-        speed_span=span,
-        estimate=estimate,
-        condition_number=condition,
-        mean_speed=mean_speed,
-        relative_error=relative_error,
-        reason=reason,
-        dropped_constraints=dropped,
-        **common,
-    )
-
-
-def _published(theta, mass: float) -> dict[str, float]:
-    r0, r1, r2 = (float(value) for value in theta)
-    return {"a": r0 * mass, "b": r1 * mass, "c": r2 * mass, "r0": r0, "r1": r1, "r2": r2}
+        return WindowFit(*head, math.nan, *published, True, 0.0, reason=reason)
+    return WindowFit(*head, objective * mass, *published, bool(reason), span, estimate, condition, mean_speed, reason,
+                     relative_error, dropped)  # fmt: skip
 
 
 def fit_window(

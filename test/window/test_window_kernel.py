@@ -1,0 +1,197 @@
+"""The window fit's C kernel (window/_kernel.c) against the Python path it mirrors (FastFit with compiled=False).
+
+Both compute the same formulas in the same order from R of [x y]; R itself comes from different
+Householder codes (LAPACK dgeqrf, the kernel's own), and the condition number, where its closed form
+is loose, from different SVDs (dgesdd, one-sided Jacobi). Tolerances: condition number, mean speed,
+GoF and relative standard error to 1e-9 relative (measured: 4e-11 on the bundled 1 Hz bags); the
+estimate to max(1e-11, 1e-15 cond^2) of each bound's range, as test_window_fast against the reference.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from test_window_fast import CONFIGS, TRAIN, _runs, _window
+from window_synthetic import train_spec
+
+from train_calib.window import WindowCalibrator, WindowConfig
+from train_calib.window import fast as fast_module
+from train_calib.window.fast import CODES, MAX_CONDITION, PATTERNS, FastFit
+
+kernel = pytest.importorskip("train_calib.window._kernel", reason="the package was installed without a C compiler")
+
+FLOATS = ("speed_span", "mean_speed", "condition_number")
+EXACT = ("stamp_ns", "run_id", "window_length", "sample_count", "gof_kind", "regime", "ill_posed",
+         "dropped_constraints")  # fmt: skip
+
+
+def _close(a: float, b: float, rtol: float = 1e-9, atol: float = 0.0) -> bool:
+    if not (math.isfinite(a) and math.isfinite(b)):
+        return (math.isnan(a) and math.isnan(b)) or a == b
+    return abs(a - b) <= rtol * max(abs(a), abs(b)) + atol
+
+
+def _assert_same(compiled, python, config: WindowConfig, mass: float = TRAIN.effective_mass_kg) -> None:
+    for name in EXACT:
+        assert getattr(compiled, name) == getattr(python, name), (name, compiled, python)
+    assert compiled.reason.split(" ")[:2] == python.reason.split(" ")[:2], (compiled.reason, python.reason)
+    for name in FLOATS:
+        assert _close(getattr(compiled, name), getattr(python, name)), (name, compiled, python)
+    # of an exact window both are round-off: 1e-12 N/kg of GoF, 1e-9 of relative standard error
+    assert _close(compiled.gof_value, python.gof_value, atol=1e-12 * mass), (compiled, python)
+    assert _close(compiled.relative_error, python.relative_error, atol=1e-9), (compiled, python)
+    width = np.array([hi - lo for lo, hi in config.specific_bounds])
+    tolerance = max(1e-11, 1e-15 * python.condition_number**2) * width
+    if python.condition_number <= MAX_CONDITION:
+        np.testing.assert_array_less(np.abs(np.subtract(compiled.estimate, python.estimate)), tolerance)
+    published = np.array([compiled.r0 - python.r0, compiled.r1 - python.r1, compiled.r2 - python.r2])
+    assert np.all(np.isnan(published)) or np.all(np.abs(published) <= max(1e-11, 1e-15 * 1e6) * width)
+
+
+def test_the_kernel_is_built_and_used_by_default():
+    fit = FastFit(TRAIN, WindowConfig())
+    assert fast_module.KERNEL_AVAILABLE and fit.compiled
+    assert not FastFit(TRAIN, WindowConfig(), compiled=False).compiled
+    assert not FastFit(TRAIN, WindowConfig(gof="sae")).compiled  # SAE is the reference's alone
+
+
+@pytest.fixture(scope="module")
+def runs():
+    return _runs()
+
+
+@pytest.mark.parametrize("name", list(CONFIGS))
+def test_streaming_compiled_equals_the_python_path(runs, name):
+    """Whole runs: every window, the active set carried from window to window, the counters."""
+    config = CONFIGS[name]
+    fitted = by_kernel = by_python = 0
+    for _, train, series in runs:
+        compiled = WindowCalibrator(train, config)
+        python = WindowCalibrator(train, config, compiled=False)
+        for i in range(len(series)):
+            a, b = compiled.update(series[i]), python.update(series[i])
+            assert (a is None) == (b is None)
+            if a is not None:
+                _assert_same(a, b, config, train.effective_mass_kg)
+                fitted += 1
+        assert compiled.counts == python.counts
+        assert compiled.reference_windows == python.reference_windows
+        assert compiled._fit.pattern == python._fit.pattern
+        assert python._fit.kernel_windows == 0
+        by_kernel += compiled._fit.kernel_windows
+        by_python += compiled._fit.constrained + compiled.reference_windows
+    assert fitted > 1500
+    # every window by the kernel, or by the Python LSI (an eq. 6/7 row binds) or the reference: 39-78 % by the kernel
+    assert by_kernel + by_python == fitted
+    assert by_kernel > 0.35 * fitted, (by_kernel, fitted)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_single_windows_compiled_equal_the_python_path(seed):
+    """Free, at bounds, ill conditioned, eq. 6/7 rows binding (left to Python) and dropped, short, long."""
+    rng = np.random.default_rng(100 + seed)
+    config = WindowConfig(r1_bounds=(0.0, 1e-3), r2_bounds=(0.0, 1e-4))
+    cases = [
+        (60, 5.0, 40.0, 0.02, None),
+        (60, 5.0, 40.0, 0.3, None),
+        (30, 20.0, 21.0, 0.05, None),  # narrow speed range: the condition number by Jacobi
+        (60, 5.0, 40.0, 0.05, 0.0),
+        (60, 5.0, 40.0, 0.05, -0.05),
+        (8, 10.0, 30.0, 0.01, 0.02),
+        (4, 10.0, 30.0, 0.01, None),  # the fewest rows the fast path takes
+        (3000, 0.0, 45.0, 0.05, None),  # beyond the kernel's stack buffer
+    ]
+    compiled, python = FastFit(TRAIN, config), FastFit(TRAIN, config, compiled=False)
+    for n, v_lo, v_hi, noise, envelope in cases:
+        x, y, upper, v = _window(rng, n, v_lo, v_hi, noise, envelope)
+        xy = np.column_stack([x, y])
+        upper_tol = upper + 1e-12 * np.maximum(1.0, np.abs(upper))
+        a, b = (f(xy, upper, upper_tol, v, 1, stamp_ns=0, run_id=0, previous=None) for f in (compiled, python))
+        _assert_same(a, b, config)
+        assert compiled.pattern == python.pattern
+    assert compiled.reference == python.reference
+    assert compiled.constrained == python.constrained > 0  # binding rows met, solved by the Python LSI
+    assert compiled.kernel_windows + compiled.constrained + compiled.reference == len(cases)
+
+
+def test_condition_number_matches_the_svd_where_the_closed_form_is_loose():
+    """Windows of a narrow speed range (l2 < 1e-4 l1 of B^T B): Jacobi against numpy's SVD of x with unit columns."""
+    rng = np.random.default_rng(5)
+    inf_params = np.array([0.0, 0.0, 0.0, 1.0, 1.0, 1.0, 1e300, 0.0])
+    checked = 0
+    for width in (0.05, 0.3, 1.0, 3.0, 30.0):
+        for _ in range(20):
+            v = rng.uniform(20.0, 20.0 + width, 50)
+            x = np.column_stack([np.ones(50), v, v * v])
+            xy = np.column_stack([x, rng.normal(0.0, 0.01, 50)])
+            out = kernel.fit(xy, np.full(50, np.inf), inf_params, CODES[(0, 0, 0)], 0)
+            unit = x / np.linalg.norm(x, axis=0)
+            expected = np.linalg.cond(unit)
+            if out[0] == 0:
+                assert out[2] == pytest.approx(expected, rel=1e-12 * expected + 1e-12)
+                checked += 1
+    assert checked >= 80
+
+
+def test_active_sets_are_searched_in_the_python_order():
+    """The fallback search visits every active set in fast.PATTERNS order, as FastFit._box."""
+    assert [9 * (p[0] + 1) + 3 * (p[1] + 1) + p[2] + 1 for p in PATTERNS] == [CODES[p] for p in PATTERNS]
+    assert sorted(CODES.values()) == list(range(27))
+
+
+def test_every_starting_active_set_reaches_the_same_fit():
+    rng = np.random.default_rng(11)
+    x, y, upper, v = _window(rng, 60, 5.0, 40.0, 0.3, None)
+    xy = np.column_stack([x, y])
+    config = WindowConfig(r1_bounds=(0.0, 1e-3), r2_bounds=(0.0, 1e-4))
+    fits = []
+    for pattern in PATTERNS:
+        fit = FastFit(TRAIN, config)
+        fit.pattern = pattern
+        fits.append(fit(xy, upper, upper, v, 1, stamp_ns=0, run_id=0, previous=None))
+        assert fit.kernel_windows == 1
+    for other in fits[1:]:
+        np.testing.assert_allclose(other.estimate, fits[0].estimate, rtol=0, atol=1e-15)
+
+
+def test_arrays_the_kernel_cannot_read_take_the_python_path():
+    rng = np.random.default_rng(3)
+    x, y, upper, v = _window(rng, 40, 5.0, 40.0, 0.05, None)
+    strided = np.column_stack([x, y, y])[:, :4]  # not C-contiguous
+    fit = FastFit(TRAIN, WindowConfig())
+    result = fit(strided, upper, upper, v, 1, stamp_ns=0, run_id=0, previous=None)
+    assert fit.kernel_windows == 0 and fit.reference == 0
+    same = FastFit(TRAIN, WindowConfig())(np.ascontiguousarray(strided), upper, upper, v, 1, stamp_ns=0, run_id=0,
+                                          previous=None)  # fmt: skip
+    _assert_same(same, result, WindowConfig())
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        ((np.zeros((5, 3)), np.zeros(5), np.zeros(8), 13, 0), "xy: expected a C-contiguous float64 array"),
+        ((np.zeros((5, 4)), np.zeros(4), np.zeros(8), 13, 0), "upper_tol: one entry per row of xy"),
+        ((np.zeros((5, 4)), np.zeros(5), np.zeros(9), 13, 0), "params: lo[3] hi[3] max_condition k"),
+        ((np.zeros((5, 4)), np.zeros(5), np.zeros(8), 27, 0), "pattern: an active-set code 0..26"),
+        ((np.zeros((5, 4), dtype=np.float32), np.zeros(5), np.zeros(8), 13, 0), "xy: expected"),
+    ],
+)
+def test_bad_arguments_are_refused_in_one_line(args, message):
+    with pytest.raises(ValueError, match=message.replace("[", r"\[").replace("]", r"\]")):
+        kernel.fit(*args)
+
+
+def test_a_window_of_other_trains_and_bounds():
+    """Non-zero lower bounds (dropped rows counted by the kernel) and reference speeds of another train."""
+    train = train_spec(adhesive_mass_fraction=0.3)
+    config = WindowConfig(r0_bounds=(0.001, 0.05), reference_speeds_kmh=(30.0, 60.0, 90.0, 120.0))
+    rng = np.random.default_rng(8)
+    compiled, python = FastFit(train, config), FastFit(train, config, compiled=False)
+    for envelope in (None, 0.05, 0.2):
+        x, y, upper, v = _window(rng, 80, 5.0, 40.0, 0.05, envelope)
+        xy = np.column_stack([x, y])
+        a, b = (f(xy, upper, upper, v, 1, stamp_ns=0, run_id=0, previous=None) for f in (compiled, python))
+        _assert_same(a, b, config, train.effective_mass_kg)
+    assert compiled.kernel_windows > 0

@@ -1,0 +1,478 @@
+/* train_calib.window._kernel: the streaming RMSE window fit of fast.py in C (same formulas, same order).
+ *
+ * fit(xy, upper_tol, params, pattern, below_zero) with
+ *   xy          (n, 4) float64, C-contiguous: [x y] of the window's rows, x = (1, v, v^2 ...) >= 0
+ *   upper_tol   (n,) float64: eq. 6/7 right-hand side + 1e-12 max(1, |upper|), N/kg
+ *   params      float64: lo0 lo1 lo2 hi0 hi1 hi2 max_condition k speed_1..speed_k davis_1..davis_k
+ *               (bounds of r0, r1, r2 in N/kg units; reference speeds in m/s; the train's r(v) there)
+ *   pattern     the last window's active set, code 9 (p0 + 1) + 3 (p1 + 1) + (p2 + 1), p in {-1, 0, 1}
+ *   below_zero  rows with upper_tol < 0, or -1 to count them here
+ * returns (status, pattern, condition, theta0, theta1, theta2, squares, relative_error, mean_speed, dropped):
+ *   status 0: the fit (theta in N/kg units, squares = ||x theta - y||^2); status 1: a case this kernel
+ *   leaves to fast.py's Python path (an eq. 6/7 row binds, too few rows, a zero column, a condition
+ *   number above max_condition, no active set found); the other values are then meaningless.
+ *
+ * The QR factor is Householder's (LAPACK dgeqr2's reflectors), the scaled condition number the closed
+ * form of fast._scaled_condition or, where that is loose, one-sided Jacobi singular values (LAPACK dgesdd
+ * in Python: equal to round-off). Agreement with the Python path: test/window/test_window_kernel.py.
+ */
+#define PY_SSIZE_T_CLEAN
+#include <Python.h>
+#include <math.h>
+#include <string.h>
+
+#define STATUS_OK 0
+#define STATUS_PYTHON 1
+#define STACK_ROWS 512
+
+typedef struct {
+    double a[3][4]; /* scaled R3 and c: rows (r00 r01 r02 c0), (0 r11 r12 c1), (0 0 r22 c2) */
+    double lo[3], hi[3];
+} Problem;
+
+/* ---- QR: R of [x y] (4 x 4 upper triangle) by Householder reflections, as dgeqr2 ------------------ */
+
+static void householder_r(const double *xy, Py_ssize_t n, double *work, double r[4][4]) {
+    memcpy(work, xy, (size_t)n * 4 * sizeof(double));
+    for (int j = 0; j < 4; j++) {
+        double alpha = work[j * 4 + j], xnorm2 = 0.0;
+        for (Py_ssize_t i = j + 1; i < n; i++) {
+            double value = work[i * 4 + j];
+            xnorm2 += value * value;
+        }
+        double beta = alpha, tau = 0.0;
+        if (xnorm2 > 0.0) {
+            beta = -copysign(hypot(alpha, sqrt(xnorm2)), alpha);
+            tau = (beta - alpha) / beta;
+            double scal = 1.0 / (alpha - beta);
+            for (Py_ssize_t i = j + 1; i < n; i++)
+                work[i * 4 + j] *= scal;
+        }
+        r[j][j] = beta;
+        if (tau == 0.0) {
+            for (int k = j + 1; k < 4; k++)
+                r[j][k] = work[j * 4 + k];
+            continue;
+        }
+        double w[4] = {0.0, 0.0, 0.0, 0.0}; /* w = A[j:, k]^T v, v = (1, work[j+1:, j]) */
+        for (int k = j + 1; k < 4; k++)
+            w[k] = work[j * 4 + k];
+        for (Py_ssize_t i = j + 1; i < n; i++) {
+            double vi = work[i * 4 + j];
+            for (int k = j + 1; k < 4; k++)
+                w[k] += vi * work[i * 4 + k];
+        }
+        for (int k = j + 1; k < 4; k++) {
+            w[k] *= tau;
+            work[j * 4 + k] -= w[k];
+            r[j][k] = work[j * 4 + k];
+        }
+        for (Py_ssize_t i = j + 1; i < n; i++) {
+            double vi = work[i * 4 + j];
+            for (int k = j + 1; k < 4; k++)
+                work[i * 4 + k] -= w[k] * vi;
+        }
+    }
+}
+
+/* ---- scaled condition number ------------------------------------------------------------------------ */
+
+static double jacobi_condition(double b[3][3]) {
+    /* one-sided Jacobi on the columns of b: the singular values are the final column norms */
+    for (int sweep = 0; sweep < 60; sweep++) {
+        int rotated = 0;
+        for (int p = 0; p < 2; p++) {
+            for (int q = p + 1; q < 3; q++) {
+                double alpha = 0.0, beta = 0.0, gamma = 0.0;
+                for (int i = 0; i < 3; i++) {
+                    alpha += b[i][p] * b[i][p];
+                    beta += b[i][q] * b[i][q];
+                    gamma += b[i][p] * b[i][q];
+                }
+                if (fabs(gamma) <= 1e-17 * sqrt(alpha * beta))
+                    continue;
+                rotated = 1;
+                double zeta = (beta - alpha) / (2.0 * gamma);
+                double t = copysign(1.0, zeta) / (fabs(zeta) + sqrt(1.0 + zeta * zeta));
+                double c = 1.0 / sqrt(1.0 + t * t), s = c * t;
+                for (int i = 0; i < 3; i++) {
+                    double bp = b[i][p], bq = b[i][q];
+                    b[i][p] = c * bp - s * bq;
+                    b[i][q] = s * bp + c * bq;
+                }
+            }
+        }
+        if (!rotated)
+            break;
+    }
+    double smax = 0.0, smin = INFINITY;
+    for (int j = 0; j < 3; j++) {
+        double norm = sqrt(b[0][j] * b[0][j] + b[1][j] * b[1][j] + b[2][j] * b[2][j]);
+        smax = norm > smax ? norm : smax;
+        smin = norm < smin ? norm : smin;
+    }
+    return smin > 0.0 ? smax / smin : INFINITY;
+}
+
+static double scaled_condition(const double a[3][4]) {
+    /* fast._scaled_condition: closed-form eigenvalues of B^T B where accurate, else Jacobi on B */
+    double r00 = a[0][0], r01 = a[0][1], r02 = a[0][2], r11 = a[1][1], r12 = a[1][2], r22 = a[2][2];
+    double n0 = fabs(r00), n1 = sqrt(r01 * r01 + r11 * r11), n2 = sqrt(r02 * r02 + r12 * r12 + r22 * r22);
+    if (n0 == 0.0 || n1 == 0.0 || n2 == 0.0)
+        return INFINITY;
+    double b01 = r01 / n1, b11 = r11 / n1, b02 = r02 / n2, b12 = r12 / n2, b22 = r22 / n2;
+    double sign = r00 > 0.0 ? 1.0 : -1.0;
+    double g01 = sign * b01, g02 = sign * b02, g12 = b01 * b02 + b11 * b12;
+    double det2 = (b11 * b22) * (b11 * b22);
+    double p2 = (g01 * g01 + g02 * g02 + g12 * g12) / 3.0;
+    if (p2 > 0.0 && det2 > 0.0) {
+        double p = sqrt(p2);
+        double q = g01 * g02 * g12 / (p2 * p);
+        double l1 = 1.0 + 2.0 * p * cos(acos(q < -1.0 ? -1.0 : q > 1.0 ? 1.0 : q) / 3.0);
+        double rest = 3.0 - l1;
+        double disc = rest * rest - 4.0 * det2 / l1;
+        double l2 = 0.5 * (rest + sqrt(disc > 0.0 ? disc : 0.0));
+        if (1e-4 * l1 <= l2 && l2 <= 0.5 * l1)
+            return sqrt(l1 * l2 / det2 * l1);
+    }
+    double b[3][3] = {{sign, b01, b02}, {0.0, b11, b12}, {0.0, 0.0, b22}};
+    return jacobi_condition(b);
+}
+
+/* ---- the bounded least squares in three variables: KKT of the active sets ----------------------------- */
+
+static int lstsq(int count, double columns[2][3], const double d[3], double out[2]) {
+    /* fast._lstsq: one or two columns by modified Gram-Schmidt on [columns d]; 0 if singular */
+    if (count == 0)
+        return 1;
+    double a0 = columns[0][0], a1 = columns[0][1], a2 = columns[0][2];
+    double r11 = sqrt(a0 * a0 + a1 * a1 + a2 * a2);
+    if (r11 == 0.0)
+        return 0;
+    double q0 = a0 / r11, q1 = a1 / r11, q2 = a2 / r11;
+    double e1 = q0 * d[0] + q1 * d[1] + q2 * d[2];
+    if (count == 1) {
+        out[0] = e1 / r11;
+        return 1;
+    }
+    double b0 = columns[1][0], b1 = columns[1][1], b2 = columns[1][2];
+    double r12 = q0 * b0 + q1 * b1 + q2 * b2;
+    b0 = b0 - r12 * q0;
+    b1 = b1 - r12 * q1;
+    b2 = b2 - r12 * q2;
+    double r22 = sqrt(b0 * b0 + b1 * b1 + b2 * b2);
+    if (r22 <= 1e-14 * r11)
+        return 0;
+    double e2 = (b0 * (d[0] - e1 * q0) + b1 * (d[1] - e1 * q1) + b2 * (d[2] - e1 * q2)) / r22;
+    double x2 = e2 / r22;
+    out[0] = (e1 - r12 * x2) / r11;
+    out[1] = x2;
+    return 1;
+}
+
+static int solve(const Problem *pr, const int pattern[3], double phi[3]) {
+    /* fast._solve: least squares of R3 phi = c with the pattern's variables at their bounds; 0 if singular */
+    const double(*a)[4] = pr->a;
+    double r00 = a[0][0], r01 = a[0][1], r02 = a[0][2], c0 = a[0][3];
+    double r11 = a[1][1], r12 = a[1][2], c1 = a[1][3], r22 = a[2][2], c2 = a[2][3];
+    if (!(pattern[0] || pattern[1] || pattern[2])) {
+        if (r00 == 0.0 || r11 == 0.0 || r22 == 0.0)
+            return 0;
+        double x2 = c2 / r22;
+        double x1 = (c1 - r12 * x2) / r11;
+        phi[0] = (c0 - r01 * x1 - r02 * x2) / r00;
+        phi[1] = x1;
+        phi[2] = x2;
+        return 1;
+    }
+    double fixed[3];
+    for (int j = 0; j < 3; j++)
+        fixed[j] = pattern[j] < 0 ? pr->lo[j] : pattern[j] > 0 ? pr->hi[j] : 0.0;
+    double f0 = fixed[0], f1 = fixed[1], f2 = fixed[2];
+    double d[3] = {c0 - r00 * f0 - r01 * f1 - r02 * f2, c1 - r11 * f1 - r12 * f2, c2 - r22 * f2};
+    const double all[3][3] = {{r00, 0.0, 0.0}, {r01, r11, 0.0}, {r02, r12, r22}};
+    double columns[2][3];
+    int count = 0;
+    for (int j = 0; j < 3; j++)
+        if (!pattern[j])
+            memcpy(columns[count++], all[j], sizeof(all[j]));
+    double values[2];
+    if (!lstsq(count, columns, d, values))
+        return 0;
+    int next = 0;
+    for (int j = 0; j < 3; j++)
+        phi[j] = pattern[j] ? fixed[j] : values[next++];
+    return 1;
+}
+
+static int kkt(const Problem *pr, const double phi[3], const int pattern[3], int corrected[3]) {
+    /* fast._kkt: 1 if phi meets the KKT conditions with this active set, else 0 and the corrected set */
+    const double(*a)[4] = pr->a;
+    double r00 = a[0][0], r01 = a[0][1], r02 = a[0][2], c0 = a[0][3];
+    double r11 = a[1][1], r12 = a[1][2], c1 = a[1][3], r22 = a[2][2], c2 = a[2][3];
+    double x0 = phi[0], x1 = phi[1], x2 = phi[2];
+    double e0 = r00 * x0 + r01 * x1 + r02 * x2 - c0;
+    double e1 = r11 * x1 + r12 * x2 - c1;
+    double e2 = r22 * x2 - c2;
+    double size = sqrt(c0 * c0 + c1 * c1 + c2 * c2) + fabs(r00 * x0) + fabs(r01 * x1) + fabs(r02 * x2);
+    size += fabs(r11 * x1) + fabs(r12 * x2) + fabs(r22 * x2);
+    int ok = 1;
+    for (int j = 0; j < 3; j++) {
+        int p = pattern[j];
+        corrected[j] = p;
+        if (p == 0) {
+            double margin = 1e-12 * (pr->hi[j] - pr->lo[j]);
+            if (phi[j] < pr->lo[j] - margin) {
+                corrected[j] = -1;
+                ok = 0;
+            } else if (phi[j] > pr->hi[j] + margin) {
+                corrected[j] = 1;
+                ok = 0;
+            }
+            continue;
+        }
+        double gradient, norm;
+        if (j == 0) {
+            gradient = r00 * e0;
+            norm = fabs(r00);
+        } else if (j == 1) {
+            gradient = r01 * e0 + r11 * e1;
+            norm = sqrt(r01 * r01 + r11 * r11);
+        } else {
+            gradient = r02 * e0 + r12 * e1 + r22 * e2;
+            norm = sqrt(r02 * r02 + r12 * r12 + r22 * r22);
+        }
+        double tolerance = 1e-12 * norm * size;
+        if ((p < 0 && gradient < -tolerance) || (p > 0 && gradient > tolerance)) {
+            corrected[j] = 0;
+            ok = 0;
+        }
+    }
+    return ok;
+}
+
+static int code_of(const int p[3]) { return 9 * (p[0] + 1) + 3 * (p[1] + 1) + (p[2] + 1); }
+
+static void pattern_of(int code, int p[3]) {
+    p[0] = code / 9 - 1;
+    p[1] = (code / 3) % 3 - 1;
+    p[2] = code % 3 - 1;
+}
+
+static void clip(const Problem *pr, double phi[3]) {
+    for (int j = 0; j < 3; j++)
+        phi[j] = phi[j] < pr->lo[j] ? pr->lo[j] : phi[j] > pr->hi[j] ? pr->hi[j] : phi[j];
+}
+
+static int box(const Problem *pr, int *code, double phi[3]) {
+    /* fast.FastFit._box: from the last active set, each miss corrected; every set (fast.PATTERNS' order) if that cycles */
+    long tried = 0;
+    int current[3], corrected[3];
+    pattern_of(*code, current);
+    while (!(tried & (1L << code_of(current)))) {
+        tried |= 1L << code_of(current);
+        if (!solve(pr, current, phi))
+            break;
+        if (kkt(pr, phi, current, corrected)) {
+            *code = code_of(current);
+            clip(pr, phi);
+            return 1;
+        }
+        memcpy(current, corrected, sizeof(current));
+    }
+    static const int order[3] = {0, -1, 1}; /* itertools.product((0, -1, 1), repeat=3) */
+    for (int i = 0; i < 27; i++) {
+        int pattern[3] = {order[i / 9], order[(i / 3) % 3], order[i % 3]};
+        if (tried & (1L << code_of(pattern)))
+            continue;
+        if (solve(pr, pattern, phi) && kkt(pr, phi, pattern, corrected)) {
+            *code = code_of(pattern);
+            clip(pr, phi);
+            return 1;
+        }
+    }
+    return 0;
+}
+
+/* ---- standard error of r(v) relative to the train's ---------------------------------------------------- */
+
+static double relative_error(const double a[3][4], const double scale[3], double sigma, Py_ssize_t k,
+                             const double *speeds, const double *davis) {
+    /* fast.FastFit._relative_error */
+    if (k == 0)
+        return 0.0;
+    double r00 = a[0][0], r01 = a[0][1], r02 = a[0][2], r11 = a[1][1], r12 = a[1][2], r22 = a[2][2];
+    double d0 = 1.0, d1 = fabs(r11) / sqrt(r01 * r01 + r11 * r11);
+    double d2 = fabs(r22) / sqrt(r02 * r02 + r12 * r12 + r22 * r22);
+    double dmin = fmin(d0, fmin(d1, d2)), dmax = fmax(d0, fmax(d1, d2));
+    if (dmin <= 1e-12 * dmax)
+        return INFINITY;
+    double worst = -INFINITY;
+    for (Py_ssize_t i = 0; i < k; i++) {
+        double speed = speeds[i];
+        double w0 = 1.0 / scale[0] / r00;
+        double w1 = (speed / scale[1] - r01 * w0) / r11;
+        double w2 = (speed * speed / scale[2] - r02 * w0 - r12 * w1) / r22;
+        double se = sigma * sqrt(w0 * w0 + w1 * w1 + w2 * w2);
+        double ratio = davis[i] != 0.0 ? se / davis[i] : (se > 0.0 ? INFINITY : NAN);
+        if (isnan(ratio))
+            return NAN;
+        worst = ratio > worst ? ratio : worst;
+    }
+    return worst;
+}
+
+/* ---- the window ----------------------------------------------------------------------------------------- */
+
+typedef struct {
+    int status, pattern;
+    double condition, theta[3], squares, relative_error, mean_speed;
+    Py_ssize_t dropped;
+} Result;
+
+static void fit_rows(const double *xy, const double *upper_tol, Py_ssize_t n, const double *params, Py_ssize_t k,
+                     Py_ssize_t below_zero, double *work, Result *out) {
+    out->status = STATUS_PYTHON;
+    if (n < 4)
+        return;
+    double r[4][4];
+    householder_r(xy, n, work, r);
+    double r00 = r[0][0], r01 = r[0][1], r02 = r[0][2], r11 = r[1][1], r12 = r[1][2], r22 = r[2][2];
+    double norm1 = sqrt(r01 * r01 + r11 * r11), norm2 = sqrt(r02 * r02 + r12 * r12 + r22 * r22);
+    if (r00 == 0.0 || norm1 == 0.0 || norm2 == 0.0)
+        return;
+    double root_n = sqrt((double)n);
+    double scale[3] = {fabs(r00) / root_n, norm1 / root_n, norm2 / root_n};
+    Problem pr = {{{r00 / scale[0], r01 / scale[1], r02 / scale[2], r[0][3]},
+                   {0.0, r11 / scale[1], r12 / scale[2], r[1][3]},
+                   {0.0, 0.0, r22 / scale[2], r[2][3]}},
+                  {0}, {0}};
+    double condition = scaled_condition(pr.a);
+    if (!(condition <= params[6]))
+        return;
+    int lo_zero = 1;
+    for (int j = 0; j < 3; j++) {
+        pr.lo[j] = params[j] * scale[j];
+        pr.hi[j] = params[3 + j] * scale[j];
+        lo_zero &= params[j] == 0.0;
+    }
+    Py_ssize_t dropped = 0;
+    if (lo_zero && below_zero >= 0) {
+        dropped = below_zero;
+    } else {
+        for (Py_ssize_t i = 0; i < n; i++) {
+            const double *x = xy + 4 * i;
+            dropped += !(x[0] * params[0] + x[1] * params[1] + x[2] * params[2] <= upper_tol[i]);
+        }
+    }
+    double phi[3];
+    if (!box(&pr, &out->pattern, phi))
+        return;
+    double theta[3] = {phi[0] / scale[0], phi[1] / scale[1], phi[2] / scale[2]};
+    for (Py_ssize_t i = 0; i < n; i++) {
+        const double *x = xy + 4 * i;
+        if (x[0] * theta[0] + x[1] * theta[1] + x[2] * theta[2] <= upper_tol[i])
+            continue;
+        if (!dropped)
+            return; /* a binding eq. 6/7 row: the LSI of the Python path */
+        /* a row dropped (infeasible at the lower bounds) may be violated; any other may not */
+        if (x[0] * params[0] + x[1] * params[1] + x[2] * params[2] <= upper_tol[i])
+            return;
+    }
+    double e0 = pr.a[0][0] * phi[0] + pr.a[0][1] * phi[1] + pr.a[0][2] * phi[2] - pr.a[0][3];
+    double e1 = pr.a[1][1] * phi[1] + pr.a[1][2] * phi[2] - pr.a[1][3];
+    double e2 = pr.a[2][2] * phi[2] - pr.a[2][3];
+    double rho = r[3][3];
+    double squares = e0 * e0 + e1 * e1 + e2 * e2 + rho * rho;
+    out->relative_error = relative_error(pr.a, scale, sqrt(squares / (double)(n - 3)), k, params + 8, params + 8 + k);
+    out->condition = condition;
+    memcpy(out->theta, theta, sizeof(theta));
+    out->squares = squares;
+    out->dropped = dropped;
+    out->mean_speed = r01 / r00; /* R's first row is q0^T [x y], q0 = -+ ones / sqrt(n) */
+    out->status = STATUS_OK;
+}
+
+static int float64_buffer(PyObject *obj, Py_buffer *view, int ndim, const char *name) {
+    if (PyObject_GetBuffer(obj, view, PyBUF_C_CONTIGUOUS | PyBUF_FORMAT) < 0)
+        return 0;
+    int ok = view->ndim == ndim && view->itemsize == 8 && view->format && strcmp(view->format, "d") == 0;
+    if (ok && ndim == 2)
+        ok = view->shape[1] == 4;
+    if (!ok) {
+        PyErr_Format(PyExc_ValueError, "%s: expected a C-contiguous float64 array of %d dimension(s)%s", name, ndim,
+                     ndim == 2 ? " and 4 columns" : "");
+        PyBuffer_Release(view);
+        return 0;
+    }
+    return 1;
+}
+
+static PyObject *kernel_fit(PyObject *module, PyObject *const *args, Py_ssize_t nargs) {
+    (void)module;
+    if (nargs != 5) {
+        PyErr_SetString(PyExc_TypeError, "fit(xy, upper_tol, params, pattern, below_zero) takes 5 arguments");
+        return NULL;
+    }
+    int pattern = (int)PyLong_AsLong(args[3]);
+    Py_ssize_t below_zero = PyLong_AsSsize_t(args[4]);
+    if (PyErr_Occurred())
+        return NULL;
+    if (pattern < 0 || pattern > 26) {
+        PyErr_SetString(PyExc_ValueError, "pattern: an active-set code 0..26");
+        return NULL;
+    }
+    Py_buffer xy, tol, params;
+    if (!float64_buffer(args[0], &xy, 2, "xy"))
+        return NULL;
+    if (!float64_buffer(args[1], &tol, 1, "upper_tol")) {
+        PyBuffer_Release(&xy);
+        return NULL;
+    }
+    if (!float64_buffer(args[2], &params, 1, "params")) {
+        PyBuffer_Release(&xy);
+        PyBuffer_Release(&tol);
+        return NULL;
+    }
+    Py_ssize_t n = xy.shape[0], size = params.shape[0];
+    const double *p = params.buf;
+    Py_ssize_t k = size >= 8 ? (Py_ssize_t)p[7] : -1;
+    PyObject *result = NULL;
+    if (tol.shape[0] != n) {
+        PyErr_SetString(PyExc_ValueError, "upper_tol: one entry per row of xy");
+    } else if (k < 0 || size != 8 + 2 * k) {
+        PyErr_SetString(PyExc_ValueError, "params: lo[3] hi[3] max_condition k speeds[k] davis[k]");
+    } else {
+        double stack[STACK_ROWS * 4];
+        double *work = n <= STACK_ROWS ? stack : PyMem_Malloc((size_t)n * 4 * sizeof(double));
+        if (work == NULL) {
+            PyErr_NoMemory();
+        } else {
+            Result out = {.pattern = pattern};
+            fit_rows(xy.buf, tol.buf, n, p, k, below_zero, work, &out);
+            if (work != stack)
+                PyMem_Free(work);
+            result = Py_BuildValue("(iidddddddn)", out.status, out.pattern, out.condition, out.theta[0],
+                                   out.theta[1], out.theta[2], out.squares, out.relative_error, out.mean_speed,
+                                   out.dropped);
+        }
+    }
+    PyBuffer_Release(&xy);
+    PyBuffer_Release(&tol);
+    PyBuffer_Release(&params);
+    return result;
+}
+
+static PyMethodDef kernel_methods[] = {
+    {"fit", (PyCFunction)(void (*)(void))kernel_fit, METH_FASTCALL,
+     "fit(xy, upper_tol, params, pattern, below_zero) -> (status, pattern, condition, theta0, theta1, theta2, "
+     "squares, relative_error, mean_speed, dropped): the RMSE window fit of train_calib.window.fast in C."},
+    {NULL, NULL, 0, NULL},
+};
+
+static struct PyModuleDef kernel_module = {
+    PyModuleDef_HEAD_INIT, "_kernel", "The streaming window fit's compiled kernel (see fast.py).", -1,
+    kernel_methods, NULL, NULL, NULL, NULL,
+};
+
+PyMODINIT_FUNC PyInit__kernel(void) { return PyModule_Create(&kernel_module); }
