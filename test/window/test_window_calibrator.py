@@ -90,7 +90,7 @@ def test_a_run_without_power_holds_only_one_window_of_steps(run):
     for i in range(len(series.t)):
         assert calibrator.update(dataclasses.replace(series[i], power_valid=False)) is None
     assert len(series.t) > 100
-    assert len(calibrator._regimes) <= 10 and len(calibrator._rows) <= 10
+    assert calibrator._window.steps <= 10 and calibrator._window.rows <= 10
     assert calibrator.counts["no_power"] == len(series.t)
 
 

@@ -195,3 +195,84 @@ def test_a_window_of_other_trains_and_bounds():
         a, b = (f(xy, upper, upper, v, 1, stamp_ns=0, run_id=0, previous=None) for f in (compiled, python))
         _assert_same(a, b, config, train.effective_mass_kg)
     assert compiled.kernel_windows > 0
+
+
+# -- the kernel's Window against calibrator._PyWindow -------------------------------------------------
+
+
+def _random_rows(rng, count):
+    """Steps of 1 s with rows (x0, x1, x2, y, upper), some invalid, some negative entries or upper below 0."""
+    for k in range(count):
+        end_ns = (k + 1) * 1_000_000_000
+        if rng.random() < 0.1:
+            yield end_ns, -1, None, False
+            continue
+        v = rng.uniform(-0.5, 40.0) if rng.random() < 0.05 else rng.uniform(0.0, 40.0)
+        upper = rng.normal(0.05, 0.1)
+        regime = int(rng.choice([1, 2, 3, 4, 200]))
+        yield end_ns, regime, (1.0, v, v * v, rng.normal(0.02, 0.01), upper, v, 0.0, 0.0), rng.random() < 0.9
+
+
+@pytest.mark.parametrize("window_s", [3, 60, 700])
+def test_window_keeps_what_the_python_window_keeps(window_s):
+    """Steps, rows, counters, span and dominant regime after every step; growth past the first capacity."""
+    from train_calib.window.calibrator import _PyWindow
+
+    rng = np.random.default_rng(window_s)
+    c_window, py_window = kernel.Window(FastFit(TRAIN, WindowConfig())._params), _PyWindow(16)
+    for end_ns, regime, row, keep in _random_rows(rng, 2500):
+        for w in (c_window, py_window):
+            w.add(end_ns, regime, row, keep)
+            w.expire(end_ns - window_s * 1_000_000_000)
+        for name in ("steps", "rows", "negatives", "below_zero", "speed_span", "regime"):
+            assert getattr(c_window, name) == getattr(py_window, name), (name, end_ns)
+        if end_ns % 97_000_000_000 == 0:
+            xy, upper, upper_tol, _ = py_window.arrays()
+            c_xy, c_upper, c_tol = (np.frombuffer(b) for b in c_window.view())
+            assert np.array_equal(c_xy.reshape(-1, 4), xy) and np.array_equal(c_upper, upper)
+            assert np.array_equal(c_tol, upper_tol)
+    assert c_window.steps == py_window.steps == window_s
+    c_window.clear()
+    assert (c_window.steps, c_window.rows, c_window.negatives, c_window.below_zero, c_window.regime) == (0, 0, 0, 0, 0)
+    assert c_window.speed_span == 0.0 and c_window.view() == (b"", b"", b"")
+
+
+def test_window_ties_go_to_the_newest_regime():
+    w = kernel.Window(FastFit(TRAIN, WindowConfig())._params)
+    row = (1.0, 10.0, 100.0, 0.0, 1.0)
+    for end_s, regime in ((1, 3), (2, 1), (3, 1), (4, 3)):
+        w.add(end_s * 10**9, regime, row, True)
+    assert w.regime == 3  # 2 each: coasting's step is the newest
+    w.add(5 * 10**9, -1, None, False)  # an invalid step counts for no regime
+    assert w.regime == 3 and w.steps == 5
+    w.expire(10**9)
+    assert w.regime == 1  # coasting lost its oldest step
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        ((0, 256, (1.0, 1.0, 1.0, 0.0, 1.0), True), "regime: -1 .* or a DrivingRegime code 0..255"),
+        ((0, 1, (1.0, 1.0), True), "row: a tuple"),
+        ((0, 1, [1.0, 1.0, 1.0, 0.0, 1.0], True), "row: a tuple"),
+    ],
+)
+def test_window_refuses_bad_steps_in_one_line(args, message):
+    w = kernel.Window(FastFit(TRAIN, WindowConfig())._params)
+    with pytest.raises(ValueError, match=message):
+        w.add(*args)
+    assert w.steps == 0
+    with pytest.raises(ValueError, match="params: lo"):
+        kernel.Window(np.zeros(9))
+
+
+def test_regime_codes_outside_uint8_count_as_unknown():
+    """A regime the message type cannot carry is taken from power, in both paths (as UNKNOWN is)."""
+    _, train, series = _runs()[1]
+    fits = {}
+    for compiled in (True, False):
+        for regime in (0, 300, -2):
+            calibrator = WindowCalibrator(train, WindowConfig(), compiled=compiled)
+            fits[compiled, regime] = [calibrator.update(series[i], regime) for i in range(200)]
+    for key, values in fits.items():
+        assert [f.regime if f else None for f in values] == [f.regime if f else None for f in fits[key[0], 0]], key

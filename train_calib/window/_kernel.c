@@ -393,6 +393,16 @@ static void fit_rows(const double *xy, const double *upper_tol, Py_ssize_t n, co
     out->status = STATUS_OK;
 }
 
+static int check_params(const double *p, Py_ssize_t size) {
+    /* the number k of reference speeds, or -1 (error set) if params is not lo[3] hi[3] max_condition k ... */
+    double k = size >= 8 ? p[7] : -1.0;
+    if (!(k >= 0.0 && k == floor(k) && (double)size == 8.0 + 2.0 * k)) {
+        PyErr_SetString(PyExc_ValueError, "params: lo[3] hi[3] max_condition k speeds[k] davis[k]");
+        return -1;
+    }
+    return (int)k;
+}
+
 static int float64_buffer(PyObject *obj, Py_buffer *view, int ndim, const char *name) {
     if (PyObject_GetBuffer(obj, view, PyBUF_C_CONTIGUOUS | PyBUF_FORMAT) < 0)
         return 0;
@@ -434,15 +444,13 @@ static PyObject *kernel_fit(PyObject *module, PyObject *const *args, Py_ssize_t 
         PyBuffer_Release(&tol);
         return NULL;
     }
-    Py_ssize_t n = xy.shape[0], size = params.shape[0];
+    Py_ssize_t n = xy.shape[0];
     const double *p = params.buf;
-    Py_ssize_t k = size >= 8 ? (Py_ssize_t)p[7] : -1;
+    int k = -1;
     PyObject *result = NULL;
     if (tol.shape[0] != n) {
         PyErr_SetString(PyExc_ValueError, "upper_tol: one entry per row of xy");
-    } else if (k < 0 || size != 8 + 2 * k) {
-        PyErr_SetString(PyExc_ValueError, "params: lo[3] hi[3] max_condition k speeds[k] davis[k]");
-    } else {
+    } else if ((k = check_params(p, params.shape[0])) >= 0) {
         double stack[STACK_ROWS * 4];
         double *work = n <= STACK_ROWS ? stack : PyMem_Malloc((size_t)n * 4 * sizeof(double));
         if (work == NULL) {
@@ -463,6 +471,359 @@ static PyObject *kernel_fit(PyObject *module, PyObject *const *args, Py_ssize_t 
     return result;
 }
 
+/* ---- Window: the streaming calibrator's window (steps with their regimes, rows) and its fit -------------- */
+
+/* calibrator._RegimeTally, _RowBuffer and the fit above in one object: Window(params), then per sample
+ * add(end_ns, regime, row, keep), expire(min_ns), fit(pattern); view() copies the rows out for the Python
+ * path. Storage: arrays used from start to stop, moved down or doubled when stop reaches the capacity. */
+
+#define REGIMES 256 /* DrivingRegime.regime is a uint8 */
+
+typedef struct {
+    long long *ns;
+    double *v;
+    Py_ssize_t start, stop, cap;
+} Extremes; /* (end_ns, v) of the rows that are the fastest (slowest) of the rows after them */
+
+typedef struct {
+    PyObject_HEAD
+    double *params;
+    Py_ssize_t k;
+    /* steps: end_ns and regime (-1: not a valid step) */
+    long long *step_ns;
+    int *step_regime;
+    Py_ssize_t s_start, s_stop, s_cap;
+    Py_ssize_t counts[REGIMES];
+    long long newest[REGIMES], sequence;
+    /* rows: end_ns, [x y], upper, upper_tol, a negative entry in x */
+    long long *row_ns;
+    double *xy, *upper, *upper_tol, *work;
+    char *negative;
+    Py_ssize_t r_start, r_stop, r_cap, negatives, below_zero;
+    Extremes fastest, slowest;
+} Window;
+
+static int grow(void **array, Py_ssize_t cap, size_t item) {
+    void *bigger = PyMem_Realloc(*array, (size_t)cap * item);
+    if (bigger == NULL) {
+        PyErr_NoMemory();
+        return 0;
+    }
+    *array = bigger;
+    return 1;
+}
+
+#define MOVE_DOWN(array, start, count, width) \
+    memmove((array), (array) + (start) * (width), (size_t)(count) * (width) * sizeof(*(array)))
+
+static int steps_room(Window *w) {
+    if (w->s_stop < w->s_cap)
+        return 1;
+    Py_ssize_t count = w->s_stop - w->s_start;
+    if (w->s_start > 0) {
+        MOVE_DOWN(w->step_ns, w->s_start, count, 1);
+        MOVE_DOWN(w->step_regime, w->s_start, count, 1);
+    } else {
+        Py_ssize_t cap = 2 * w->s_cap;
+        if (!grow((void **)&w->step_ns, cap, sizeof(long long)) || !grow((void **)&w->step_regime, cap, sizeof(int)))
+            return 0;
+        w->s_cap = cap;
+    }
+    w->s_start = 0;
+    w->s_stop = count;
+    return 1;
+}
+
+static int rows_room(Window *w) {
+    if (w->r_stop < w->r_cap)
+        return 1;
+    Py_ssize_t count = w->r_stop - w->r_start;
+    if (w->r_start > 0) {
+        MOVE_DOWN(w->row_ns, w->r_start, count, 1);
+        MOVE_DOWN(w->xy, w->r_start, count, 4);
+        MOVE_DOWN(w->upper, w->r_start, count, 1);
+        MOVE_DOWN(w->upper_tol, w->r_start, count, 1);
+        MOVE_DOWN(w->negative, w->r_start, count, 1);
+    } else {
+        Py_ssize_t cap = 2 * w->r_cap;
+        if (!grow((void **)&w->row_ns, cap, sizeof(long long)) || !grow((void **)&w->xy, cap, 4 * sizeof(double)) ||
+            !grow((void **)&w->upper, cap, sizeof(double)) || !grow((void **)&w->upper_tol, cap, sizeof(double)) ||
+            !grow((void **)&w->negative, cap, 1) || !grow((void **)&w->work, cap, 4 * sizeof(double)))
+            return 0;
+        w->r_cap = cap;
+    }
+    w->r_start = 0;
+    w->r_stop = count;
+    return 1;
+}
+
+static int extremes_push(Extremes *e, long long ns, double v, int fastest) {
+    while (e->stop > e->start && (fastest ? e->v[e->stop - 1] <= v : e->v[e->stop - 1] >= v))
+        e->stop--;
+    if (e->stop == e->cap) {
+        Py_ssize_t count = e->stop - e->start;
+        if (e->start > 0) {
+            MOVE_DOWN(e->ns, e->start, count, 1);
+            MOVE_DOWN(e->v, e->start, count, 1);
+        } else {
+            Py_ssize_t cap = 2 * e->cap;
+            if (!grow((void **)&e->ns, cap, sizeof(long long)) || !grow((void **)&e->v, cap, sizeof(double)))
+                return 0;
+            e->cap = cap;
+        }
+        e->start = 0;
+        e->stop = count;
+    }
+    e->ns[e->stop] = ns;
+    e->v[e->stop++] = v;
+    return 1;
+}
+
+static void window_clear(Window *w) {
+    w->s_start = w->s_stop = w->r_start = w->r_stop = 0;
+    w->negatives = w->below_zero = 0;
+    w->fastest.start = w->fastest.stop = w->slowest.start = w->slowest.stop = 0;
+    memset(w->counts, 0, sizeof(w->counts));
+    memset(w->newest, 0, sizeof(w->newest));
+}
+
+static void window_dealloc(Window *w) {
+    PyMem_Free(w->params);
+    PyMem_Free(w->step_ns);
+    PyMem_Free(w->step_regime);
+    PyMem_Free(w->row_ns);
+    PyMem_Free(w->xy);
+    PyMem_Free(w->upper);
+    PyMem_Free(w->upper_tol);
+    PyMem_Free(w->work);
+    PyMem_Free(w->negative);
+    PyMem_Free(w->fastest.ns);
+    PyMem_Free(w->fastest.v);
+    PyMem_Free(w->slowest.ns);
+    PyMem_Free(w->slowest.v);
+    Py_TYPE(w)->tp_free((PyObject *)w);
+}
+
+static PyObject *window_new(PyTypeObject *type, PyObject *args, PyObject *kwargs) {
+    PyObject *params_obj;
+    static char *keywords[] = {"params", NULL};
+    if (!PyArg_ParseTupleAndKeywords(args, kwargs, "O:Window", keywords, &params_obj))
+        return NULL;
+    Py_buffer view;
+    if (!float64_buffer(params_obj, &view, 1, "params"))
+        return NULL;
+    int k = check_params(view.buf, view.shape[0]);
+    Window *w = k < 0 ? NULL : (Window *)type->tp_alloc(type, 0);
+    if (w == NULL) {
+        PyBuffer_Release(&view);
+        return NULL;
+    }
+    w->k = k;
+    const Py_ssize_t cap = 64;
+    w->s_cap = w->r_cap = w->fastest.cap = w->slowest.cap = cap;
+    w->params = PyMem_Malloc((size_t)view.shape[0] * sizeof(double));
+    w->step_ns = PyMem_Malloc(cap * sizeof(long long));
+    w->step_regime = PyMem_Malloc(cap * sizeof(int));
+    w->row_ns = PyMem_Malloc(cap * sizeof(long long));
+    w->xy = PyMem_Malloc(cap * 4 * sizeof(double));
+    w->upper = PyMem_Malloc(cap * sizeof(double));
+    w->upper_tol = PyMem_Malloc(cap * sizeof(double));
+    w->work = PyMem_Malloc(cap * 4 * sizeof(double));
+    w->negative = PyMem_Malloc(cap);
+    w->fastest.ns = PyMem_Malloc(cap * sizeof(long long));
+    w->fastest.v = PyMem_Malloc(cap * sizeof(double));
+    w->slowest.ns = PyMem_Malloc(cap * sizeof(long long));
+    w->slowest.v = PyMem_Malloc(cap * sizeof(double));
+    if (!w->params || !w->step_ns || !w->step_regime || !w->row_ns || !w->xy || !w->upper || !w->upper_tol ||
+        !w->work || !w->negative || !w->fastest.ns || !w->fastest.v || !w->slowest.ns || !w->slowest.v) {
+        PyBuffer_Release(&view);
+        Py_DECREF(w);
+        return PyErr_NoMemory();
+    }
+    memcpy(w->params, view.buf, (size_t)view.shape[0] * sizeof(double));
+    PyBuffer_Release(&view);
+    window_clear(w);
+    return (PyObject *)w;
+}
+
+static PyObject *window_add(Window *w, PyObject *const *args, Py_ssize_t nargs) {
+    if (nargs != 4) {
+        PyErr_SetString(PyExc_TypeError, "add(end_ns, regime, row, keep) takes 4 arguments");
+        return NULL;
+    }
+    long long end_ns = PyLong_AsLongLong(args[0]);
+    long regime = PyLong_AsLong(args[1]);
+    int keep = PyObject_IsTrue(args[3]);
+    if (PyErr_Occurred())
+        return NULL;
+    if (regime < -1 || regime >= REGIMES) {
+        PyErr_SetString(PyExc_ValueError, "regime: -1 (no valid step) or a DrivingRegime code 0..255");
+        return NULL;
+    }
+    double row[5];
+    int has_row = args[2] != Py_None;
+    if (has_row) {
+        if (!PyTuple_Check(args[2]) || PyTuple_GET_SIZE(args[2]) < 5) {
+            PyErr_SetString(PyExc_ValueError, "row: a tuple (x0, x1, x2, y, upper, ...) or None");
+            return NULL;
+        }
+        for (int j = 0; j < 5; j++)
+            row[j] = PyFloat_AsDouble(PyTuple_GET_ITEM(args[2], j));
+        if (PyErr_Occurred())
+            return NULL;
+    }
+    if (!steps_room(w))
+        return NULL;
+    w->step_ns[w->s_stop] = end_ns;
+    w->step_regime[w->s_stop++] = has_row ? (int)regime : -1;
+    if (has_row && regime >= 0) {
+        w->counts[regime]++;
+        w->newest[regime] = ++w->sequence;
+    }
+    if (!(has_row && keep))
+        Py_RETURN_NONE;
+    if (!rows_room(w))
+        return NULL;
+    Py_ssize_t i = w->r_stop;
+    double upper = row[4], upper_tol = upper + 1e-12 * fmax(1.0, fabs(upper));
+    w->row_ns[i] = end_ns;
+    memcpy(w->xy + 4 * i, row, 4 * sizeof(double));
+    w->upper[i] = upper;
+    w->upper_tol[i] = upper_tol;
+    w->below_zero += upper_tol < 0.0;
+    w->negative[i] = row[0] < 0.0 || row[1] < 0.0 || row[2] < 0.0;
+    w->negatives += w->negative[i];
+    w->r_stop++;
+    if (!extremes_push(&w->fastest, end_ns, row[1], 1) || !extremes_push(&w->slowest, end_ns, row[1], 0))
+        return NULL;
+    Py_RETURN_NONE;
+}
+
+static PyObject *window_expire(Window *w, PyObject *arg) {
+    long long min_ns = PyLong_AsLongLong(arg);
+    if (min_ns == -1 && PyErr_Occurred())
+        return NULL;
+    while (w->s_start < w->s_stop && w->step_ns[w->s_start] <= min_ns) {
+        int regime = w->step_regime[w->s_start++];
+        if (regime >= 0)
+            w->counts[regime]--;
+    }
+    while (w->r_start < w->r_stop && w->row_ns[w->r_start] <= min_ns) {
+        w->negatives -= w->negative[w->r_start];
+        w->below_zero -= w->upper_tol[w->r_start] < 0.0;
+        w->r_start++;
+    }
+    while (w->fastest.start < w->fastest.stop && w->fastest.ns[w->fastest.start] <= min_ns)
+        w->fastest.start++;
+    while (w->slowest.start < w->slowest.stop && w->slowest.ns[w->slowest.start] <= min_ns)
+        w->slowest.start++;
+    Py_RETURN_NONE;
+}
+
+static PyObject *window_clear_method(Window *w, PyObject *Py_UNUSED(ignored)) {
+    window_clear(w);
+    Py_RETURN_NONE;
+}
+
+static int window_regime(const Window *w) {
+    /* _RegimeTally.dominant: the most frequent regime; a tie goes to the newest step's; none: UNKNOWN (0) */
+    int best = -1;
+    for (int r = 0; r < REGIMES; r++) {
+        if (w->counts[r] == 0)
+            continue;
+        if (best < 0 || w->counts[r] > w->counts[best] ||
+            (w->counts[r] == w->counts[best] && w->newest[r] > w->newest[best]))
+            best = r;
+    }
+    return best < 0 ? 0 : best;
+}
+
+static double window_span(const Window *w) {
+    if (w->fastest.stop == w->fastest.start)
+        return 0.0;
+    return w->fastest.v[w->fastest.start] - w->slowest.v[w->slowest.start];
+}
+
+static PyObject *window_fit(Window *w, PyObject *arg) {
+    long pattern = PyLong_AsLong(arg);
+    if (pattern == -1 && PyErr_Occurred())
+        return NULL;
+    if (pattern < 0 || pattern > 26) {
+        PyErr_SetString(PyExc_ValueError, "pattern: an active-set code 0..26");
+        return NULL;
+    }
+    Result out = {.pattern = (int)pattern};
+    Py_ssize_t n = w->r_stop - w->r_start;
+    if (w->negatives == 0)
+        fit_rows(w->xy + 4 * w->r_start, w->upper_tol + w->r_start, n, w->params, w->k, w->below_zero, w->work, &out);
+    else
+        out.status = STATUS_PYTHON;
+    return Py_BuildValue("(iidddddddnndi)", out.status, out.pattern, out.condition, out.theta[0], out.theta[1],
+                         out.theta[2], out.squares, out.relative_error, out.mean_speed, out.dropped, n, window_span(w),
+                         window_regime(w));
+}
+
+static PyObject *window_view(Window *w, PyObject *Py_UNUSED(ignored)) {
+    Py_ssize_t n = w->r_stop - w->r_start;
+    return Py_BuildValue("(y#y#y#)", (const char *)(w->xy + 4 * w->r_start), n * 4 * (Py_ssize_t)sizeof(double),
+                         (const char *)(w->upper + w->r_start), n * (Py_ssize_t)sizeof(double),
+                         (const char *)(w->upper_tol + w->r_start), n * (Py_ssize_t)sizeof(double));
+}
+
+static PyObject *window_get_steps(Window *w, void *Py_UNUSED(closure)) {
+    return PyLong_FromSsize_t(w->s_stop - w->s_start);
+}
+
+static PyObject *window_get_rows(Window *w, void *Py_UNUSED(closure)) {
+    return PyLong_FromSsize_t(w->r_stop - w->r_start);
+}
+
+static PyObject *window_get_negatives(Window *w, void *Py_UNUSED(closure)) { return PyLong_FromSsize_t(w->negatives); }
+
+static PyObject *window_get_below_zero(Window *w, void *Py_UNUSED(closure)) {
+    return PyLong_FromSsize_t(w->below_zero);
+}
+
+static PyObject *window_get_speed_span(Window *w, void *Py_UNUSED(closure)) {
+    return PyFloat_FromDouble(window_span(w));
+}
+
+static PyObject *window_get_regime(Window *w, void *Py_UNUSED(closure)) { return PyLong_FromLong(window_regime(w)); }
+
+static PyMethodDef window_methods[] = {
+    {"add", (PyCFunction)(void (*)(void))window_add, METH_FASTCALL,
+     "add(end_ns, regime, row, keep): a step ending at end_ns (ns); regime -1 and row None: not a valid step; "
+     "row (x0, x1, x2, y, upper, ...) as StepModel.row, kept among the rows if keep."},
+    {"expire", (PyCFunction)window_expire, METH_O, "expire(min_ns): drop the steps ending at or before min_ns."},
+    {"clear", (PyCFunction)window_clear_method, METH_NOARGS, "clear(): an empty window."},
+    {"fit", (PyCFunction)window_fit, METH_O,
+     "fit(pattern) -> (status, pattern, condition, theta0, theta1, theta2, squares, relative_error, mean_speed, "
+     "dropped, n, speed_span, regime): the module's fit() of the rows (status 1 also with a negative x entry)."},
+    {"view", (PyCFunction)window_view, METH_NOARGS, "view() -> (xy, upper, upper_tol) of the rows as float64 bytes."},
+    {NULL, NULL, 0, NULL},
+};
+
+static PyGetSetDef window_getset[] = {
+    {"steps", (getter)window_get_steps, NULL, "steps in the window (valid or not)", NULL},
+    {"rows", (getter)window_get_rows, NULL, "rows the fit uses", NULL},
+    {"negatives", (getter)window_get_negatives, NULL, "rows with a negative entry in x", NULL},
+    {"below_zero", (getter)window_get_below_zero, NULL, "rows with upper_tol < 0", NULL},
+    {"speed_span", (getter)window_get_speed_span, NULL, "max - min speed of the rows, m/s", NULL},
+    {"regime", (getter)window_get_regime, NULL, "dominant regime of the valid steps", NULL},
+    {NULL, NULL, NULL, NULL, NULL},
+};
+
+static PyTypeObject WindowType = {
+    PyVarObject_HEAD_INIT(NULL, 0).tp_name = "train_calib.window._kernel.Window",
+    .tp_basicsize = sizeof(Window),
+    .tp_flags = Py_TPFLAGS_DEFAULT,
+    .tp_doc = "The streaming calibrator's window in C (see calibrator._PyWindow, the same in Python).",
+    .tp_new = window_new,
+    .tp_dealloc = (destructor)window_dealloc,
+    .tp_methods = window_methods,
+    .tp_getset = window_getset,
+};
+
 static PyMethodDef kernel_methods[] = {
     {"fit", (PyCFunction)(void (*)(void))kernel_fit, METH_FASTCALL,
      "fit(xy, upper_tol, params, pattern, below_zero) -> (status, pattern, condition, theta0, theta1, theta2, "
@@ -475,4 +836,17 @@ static struct PyModuleDef kernel_module = {
     kernel_methods, NULL, NULL, NULL, NULL,
 };
 
-PyMODINIT_FUNC PyInit__kernel(void) { return PyModule_Create(&kernel_module); }
+PyMODINIT_FUNC PyInit__kernel(void) {
+    if (PyType_Ready(&WindowType) < 0)
+        return NULL;
+    PyObject *module = PyModule_Create(&kernel_module);
+    if (module == NULL)
+        return NULL;
+    Py_INCREF(&WindowType);
+    if (PyModule_AddObject(module, "Window", (PyObject *)&WindowType) < 0) {
+        Py_DECREF(&WindowType);
+        Py_DECREF(module);
+        return NULL;
+    }
+    return module;
+}

@@ -144,19 +144,71 @@ class _RegimeTally:
         return max((r for r, count in self.counts.items() if count == top), key=self.newest.__getitem__)
 
 
+class _PyWindow:
+    """The window's steps (with their regimes) and rows in Python: the interface of the C kernel's Window."""
+
+    def __init__(self, capacity: int) -> None:
+        self._rows = _RowBuffer(capacity)
+        self._regimes = _RegimeTally()
+
+    def add(self, end_ns: int, regime: int, row: tuple | None, keep: bool) -> None:
+        """A step ending at end_ns; regime -1 and row None: not a valid step; row kept for the fit if keep."""
+        self._regimes.append(end_ns, None if row is None else regime)
+        if row is not None and keep:
+            self._rows.append(end_ns, row)
+
+    def expire(self, min_ns: int) -> None:
+        self._rows.expire(min_ns)
+        self._regimes.expire(min_ns)
+
+    def clear(self) -> None:
+        self._rows.clear()
+        self._regimes.clear()
+
+    @property
+    def steps(self) -> int:
+        return len(self._regimes)
+
+    @property
+    def rows(self) -> int:
+        return len(self._rows)
+
+    @property
+    def negatives(self) -> int:
+        return self._rows.negatives
+
+    @property
+    def below_zero(self) -> int:
+        return self._rows.below_zero
+
+    @property
+    def speed_span(self) -> float:
+        return self._rows.speed_span
+
+    @property
+    def regime(self) -> int:
+        return self._regimes.dominant()
+
+    def arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """[x y] (n, 4), upper, upper_tol, v of the rows in the window."""
+        return self._rows.view()
+
+
 class WindowCalibrator:
     """De Martinis & Corman's online calibration over a sliding window of ``config.window_length`` s.
 
-    ``update`` takes each Measurement of a run with the sample's driving regime (None, UNKNOWN or
-    ``regime_source`` power: derived from the measured force and acceleration) and returns the fit of
-    the window ending at that sample, or None when the sample carries no power (the method is
-    inactive without it), is out of order or not finite, or no step has been completed yet. A new
-    run_id starts a new window; the published values of the last well-posed window are kept across
-    runs (same train). ``counts`` tallies samples and fits by outcome for diagnostics.
+    ``update`` takes each Measurement of a run with the sample's driving regime (None, UNKNOWN, a code
+    outside DrivingRegime's uint8 or ``regime_source`` power: derived from the measured force and
+    acceleration) and returns the fit of the window ending at that sample, or None when the sample
+    carries no power (the method is inactive without it), is out of order or not finite, or no step
+    has been completed yet. A new run_id starts a new window; the published values of the last
+    well-posed window are kept across runs (same train). ``counts`` tallies samples and fits by
+    outcome for diagnostics.
 
     fast: the RMSE fit from the window's QR factor (:mod:`.fast`, equal to the reference to round-off);
-    False: every window by the reference solver (``fit_design``). compiled: that fit by its C kernel
-    where the package has it (False: its Python path only; same results to round-off).
+    False: every window by the reference solver (``fit_design``). compiled: that fit, and the window's
+    steps and rows, by the C kernel where the package has it (False: in Python only; same results to
+    round-off).
     """
 
     def __init__(
@@ -175,8 +227,10 @@ class WindowCalibrator:
         self.config = config
         self._step = StepModel(self.train, config)
         self._fit = FastFit(self.train, config, self.compiled)
-        self._rows = _RowBuffer(max(16, int(2 * config.window_length) + 4))
-        self._regimes = _RegimeTally()
+        # the C kernel's window where the fast fit runs in C, else the same in Python
+        self._window = (self._fit.new_window() if self.fast else None) or _PyWindow(
+            max(16, int(2 * config.window_length) + 4)
+        )
         self._window_ns = round(config.window_length * 1e9)
         self._last: tuple | None = None  # (stamp_ns, run_id, regime, (t, v, f, g, tau, v_variance, limit))
 
@@ -192,8 +246,7 @@ class WindowCalibrator:
         self.last_fit = None
 
     def _clear(self) -> None:
-        self._rows.clear()
-        self._regimes.clear()
+        self._window.clear()
         self._last = None
 
     def update(self, m: Measurement, regime: int | None = None) -> WindowFit | None:
@@ -212,21 +265,20 @@ class WindowCalibrator:
         t = (m.stamp_ns - self._origin_ns) * 1e-9
         step = self._step
         force = step.force(m.v, m.power_consumed, m.power_regenerated) if m.power_valid else math.nan
-        if cfg.regime_source == "power" or regime == UNKNOWN:
+        if cfg.regime_source == "power" or regime is None or not UNKNOWN < regime < 256:
             regime = None
         sample = (t, m.v, force, m.track_force, m.tunnel_fraction, m.v_variance, step.limit(m.v))
         previous, self._last = self._last, (m.stamp_ns, m.run_id, regime, sample)
         if previous is not None:
             self._add_step(m.stamp_ns, previous[2], previous[3], sample)
         min_ns = m.stamp_ns - self._window_ns  # expired with or without power: the window holds window_length
-        self._rows.expire(min_ns)
-        self._regimes.expire(min_ns)
+        self._window.expire(min_ns)
         if not m.power_valid:
             self.counts["no_power"] += 1
             return None
         if m.v < cfg.min_speed:
             self.counts["below_min_speed"] += 1
-        if not self._regimes:  # no step in the window
+        if not self._window.steps:  # no step in the window
             return None
         fit = self._fit_window(m.stamp_ns, m.run_id)
         self.counts["ill_posed" if fit.ill_posed else "well_posed"] += 1
@@ -240,24 +292,19 @@ class WindowCalibrator:
         row = self._step.row(start, end)
         if row is None:
             self.counts["invalid_step"] += 1
-            self._regimes.append(end_ns, None)
+            self._window.add(end_ns, -1, None, False)
             return
         if regime is None:
             regime = self._step.regime(row[7], row[6])
-        self._regimes.append(end_ns, regime)
-        if not (self.config.exclude_braking and regime == BRAKING):
-            self._rows.append(end_ns, row)
+        self._window.add(end_ns, regime, row, not (self.config.exclude_braking and regime == BRAKING))
 
     def _fit_window(self, stamp_ns: int, run_id: int) -> WindowFit:
-        xy, upper, upper_tol, v = self._rows.view()
-        regime = self._regimes.dominant()
         context = {"stamp_ns": stamp_ns, "run_id": run_id, "previous": self.last_fit}
-        if not self.fast:
-            self._fit.reference += 1
-            return fit_design(xy[:, :3], xy[:, 3], upper, v, regime, self.train, self.config, **context)
-        rows = self._rows
-        return self._fit(xy, upper, upper_tol, v, regime, nonnegative=not rows.negatives, below_zero=rows.below_zero,
-                         span=rows.speed_span, **context)  # fmt: skip
+        if self.fast:
+            return self._fit.fit_window(self._window, context)
+        self._fit.reference += 1
+        xy, upper, _, v = self._window.arrays()
+        return fit_design(xy[:, :3], xy[:, 3], upper, v, self._window.regime, self.train, self.config, **context)
 
 
 def _finite(m: Measurement) -> bool:

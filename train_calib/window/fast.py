@@ -103,16 +103,41 @@ class FastFit:
             fit = fit_design(xy[:, :3], xy[:, 3], upper, v, regime, self.train, self.config, **context)
         return fit
 
+    def new_window(self):
+        """The C kernel's Window for the streaming calibrator (None: no kernel, or this config is not for it)."""
+        return _kernel.Window(self._params) if self.compiled else None
+
+    def fit_window(self, window, context: dict) -> WindowFit:
+        """The fit of a streaming window: the kernel's Window (fitted in place) or calibrator._PyWindow."""
+        if self.compiled:
+            status, code, *numbers, n, span, regime = window.fit(CODES[self.pattern])
+            if not status:
+                self.kernel_windows += 1
+                self.pattern = PATTERNS_BY_CODE[code]
+                return self._result(numbers, n, span, regime, context)
+            xy, upper, upper_tol = (np.frombuffer(b) for b in window.view())
+            xy = xy.reshape(-1, 4)
+            v = xy[:, 1]
+        else:
+            xy, upper, upper_tol, v = window.arrays()
+            span, regime = window.speed_span, window.regime
+        return self(xy, upper, upper_tol, v, regime, stamp_ns=context["stamp_ns"], run_id=context["run_id"],
+                    previous=context["previous"], nonnegative=not window.negatives, below_zero=window.below_zero,
+                    span=span)  # fmt: skip
+
     def _fast(self, xy, upper, upper_tol, v, regime, context, below_zero, span) -> WindowFit | None:
         numbers = self._compiled(xy, upper_tol, below_zero) if self.compiled else None
         if numbers is None:
             numbers = self._numbers(xy, upper, upper_tol, below_zero)
             if numbers is None:
                 return None
-        condition, theta0, theta1, theta2, squares, relative_error, mean_speed, dropped = numbers
-        n = len(v)
         if span is None:
             span = float(v.max() - v.min())
+        return self._result(numbers, len(v), span, regime, context)
+
+    def _result(self, numbers, n: int, span: float, regime: int, context: dict) -> WindowFit:
+        """The WindowFit of the window's numbers (see _numbers), n rows, speed span (m/s), dominant regime."""
+        condition, theta0, theta1, theta2, squares, relative_error, mean_speed, dropped = numbers
         reason = ill_posed_reason(n, span, condition, self.config, relative_error)
         return make_fit(self.train, self.config, n=n, regime=regime, span=span, mean_speed=mean_speed,
                         condition=condition, estimate=(theta0, theta1, theta2), objective=math.sqrt(squares / n),
