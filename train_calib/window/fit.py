@@ -21,13 +21,14 @@ from .model import BRAKING, UNKNOWN, DifferenceRows, difference_rows, regime_fro
 NAN3 = (math.nan, math.nan, math.nan)
 
 
-@dataclass(frozen=True)
+@dataclass(slots=True)
 class WindowFit:
     """The calibration of one window (fields of WindowResistance.msg first, then diagnostics).
 
     ``a, b, c, r0, r1, r2`` are the values to publish: this window's estimate when it is well posed,
     otherwise the last well-posed values (NaN before the first). ``estimate`` is always this window's
-    own solution (N/kg units), for diagnostics.
+    own solution (N/kg units), for diagnostics. A plain record like Measurement and EstimateSample (slots,
+    not frozen: one is made per sample, and a frozen dataclass takes 8x longer to build).
     """
 
     stamp_ns: int  # time of the newest sample in the window, ns
