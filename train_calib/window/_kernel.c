@@ -513,67 +513,48 @@ static int grow(void **array, Py_ssize_t cap, size_t item) {
     return 1;
 }
 
-#define MOVE_DOWN(array, start, count, width) \
-    memmove((array), (array) + (start) * (width), (size_t)(count) * (width) * sizeof(*(array)))
-
-static int steps_room(Window *w) {
-    if (w->s_stop < w->s_cap)
+static int room(void **columns[], const size_t sizes[], int count, Py_ssize_t *start, Py_ssize_t *stop,
+                Py_ssize_t *cap) {
+    /* room for one more entry at *stop in parallel arrays: their entries moved down to 0, or the arrays doubled */
+    if (*stop < *cap)
         return 1;
-    Py_ssize_t count = w->s_stop - w->s_start;
-    if (w->s_start > 0) {
-        MOVE_DOWN(w->step_ns, w->s_start, count, 1);
-        MOVE_DOWN(w->step_regime, w->s_start, count, 1);
+    Py_ssize_t used = *stop - *start;
+    if (*start > 0) {
+        for (int c = 0; c < count; c++)
+            memmove(*columns[c], (char *)*columns[c] + *start * sizes[c], (size_t)used * sizes[c]);
     } else {
-        Py_ssize_t cap = 2 * w->s_cap;
-        if (!grow((void **)&w->step_ns, cap, sizeof(long long)) || !grow((void **)&w->step_regime, cap, sizeof(int)))
-            return 0;
-        w->s_cap = cap;
+        for (int c = 0; c < count; c++)
+            if (!grow(columns[c], 2 * *cap, sizes[c]))
+                return 0;
+        *cap *= 2;
     }
-    w->s_start = 0;
-    w->s_stop = count;
+    *start = 0;
+    *stop = used;
     return 1;
 }
 
+static int steps_room(Window *w) {
+    void **columns[] = {(void **)&w->step_ns, (void **)&w->step_regime};
+    const size_t sizes[] = {sizeof(long long), sizeof(int)};
+    return room(columns, sizes, 2, &w->s_start, &w->s_stop, &w->s_cap);
+}
+
 static int rows_room(Window *w) {
-    if (w->r_stop < w->r_cap)
-        return 1;
-    Py_ssize_t count = w->r_stop - w->r_start;
-    if (w->r_start > 0) {
-        MOVE_DOWN(w->row_ns, w->r_start, count, 1);
-        MOVE_DOWN(w->xy, w->r_start, count, 4);
-        MOVE_DOWN(w->upper, w->r_start, count, 1);
-        MOVE_DOWN(w->upper_tol, w->r_start, count, 1);
-        MOVE_DOWN(w->negative, w->r_start, count, 1);
-    } else {
-        Py_ssize_t cap = 2 * w->r_cap;
-        if (!grow((void **)&w->row_ns, cap, sizeof(long long)) || !grow((void **)&w->xy, cap, 4 * sizeof(double)) ||
-            !grow((void **)&w->upper, cap, sizeof(double)) || !grow((void **)&w->upper_tol, cap, sizeof(double)) ||
-            !grow((void **)&w->negative, cap, 1) || !grow((void **)&w->work, cap, 4 * sizeof(double)))
-            return 0;
-        w->r_cap = cap;
-    }
-    w->r_start = 0;
-    w->r_stop = count;
-    return 1;
+    /* the QR's work array grows with the rows (moving it down is harmless) */
+    void **columns[] = {(void **)&w->row_ns, (void **)&w->xy, (void **)&w->upper, (void **)&w->upper_tol,
+                        (void **)&w->negative, (void **)&w->work};
+    const size_t sizes[] = {sizeof(long long), 4 * sizeof(double), sizeof(double), sizeof(double), 1,
+                            4 * sizeof(double)};
+    return room(columns, sizes, 6, &w->r_start, &w->r_stop, &w->r_cap);
 }
 
 static int extremes_push(Extremes *e, long long ns, double v, int fastest) {
     while (e->stop > e->start && (fastest ? e->v[e->stop - 1] <= v : e->v[e->stop - 1] >= v))
         e->stop--;
-    if (e->stop == e->cap) {
-        Py_ssize_t count = e->stop - e->start;
-        if (e->start > 0) {
-            MOVE_DOWN(e->ns, e->start, count, 1);
-            MOVE_DOWN(e->v, e->start, count, 1);
-        } else {
-            Py_ssize_t cap = 2 * e->cap;
-            if (!grow((void **)&e->ns, cap, sizeof(long long)) || !grow((void **)&e->v, cap, sizeof(double)))
-                return 0;
-            e->cap = cap;
-        }
-        e->start = 0;
-        e->stop = count;
-    }
+    void **columns[] = {(void **)&e->ns, (void **)&e->v};
+    const size_t sizes[] = {sizeof(long long), sizeof(double)};
+    if (!room(columns, sizes, 2, &e->start, &e->stop, &e->cap))
+        return 0;
     e->ns[e->stop] = ns;
     e->v[e->stop++] = v;
     return 1;
