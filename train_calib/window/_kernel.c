@@ -1,20 +1,23 @@
 /* train_calib.window._kernel: the streaming RMSE window fit of fast.py in C (same formulas, same order).
  *
- * fit(xy, upper_tol, params, pattern, below_zero) with
+ * fit(xy, upper, upper_tol, params, pattern, below_zero) with
  *   xy          (n, 4) float64, C-contiguous: [x y] of the window's rows, x = (1, v, v^2 ...) >= 0
- *   upper_tol   (n,) float64: eq. 6/7 right-hand side + 1e-12 max(1, |upper|), N/kg
+ *   upper       (n,) float64: eq. 6/7 right-hand side, N/kg (inf: no constraint)
+ *   upper_tol   (n,) float64: upper + 1e-12 max(1, |upper|), the feasibility test
  *   params      float64: lo0 lo1 lo2 hi0 hi1 hi2 max_condition k speed_1..speed_k davis_1..davis_k
  *               (bounds of r0, r1, r2 in N/kg units; reference speeds in m/s; the train's r(v) there)
  *   pattern     the last window's active set, code 9 (p0 + 1) + 3 (p1 + 1) + (p2 + 1), p in {-1, 0, 1}
  *   below_zero  rows with upper_tol < 0, or -1 to count them here
- * returns (status, pattern, condition, theta0, theta1, theta2, squares, relative_error, mean_speed, dropped):
- *   status 0: the fit (theta in N/kg units, squares = ||x theta - y||^2); status 1: a case this kernel
- *   leaves to fast.py's Python path (an eq. 6/7 row binds, too few rows, a zero column, a condition
- *   number above max_condition, no active set found); the other values are then meaningless.
+ * returns (status, pattern, constrained, condition, theta0, theta1, theta2, squares, relative_error, mean_speed,
+ * dropped): status 0: the fit (theta in N/kg units, squares = ||x theta - y||^2; constrained: an eq. 6/7 row
+ * binds, solved by the LSI); status 1: a case this kernel leaves to fast.py's Python path (too few rows, a
+ * zero column, a condition number above max_condition, no active set found, inconsistent eq. 6/7 rows); the
+ * other values are then meaningless.
  *
  * The QR factor is Householder's (LAPACK dgeqr2's reflectors), the scaled condition number the closed
  * form of fast._scaled_condition or, where that is loose, one-sided Jacobi singular values (LAPACK dgesdd
- * in Python: equal to round-off). Agreement with the Python path: test/window/test_window_kernel.py.
+ * in Python), the LSI fast._lsi's reduction with Lawson & Hanson's NNLS (scipy's nnls in Python): equal to
+ * round-off. Agreement with the Python path: test/window/test_window_kernel.py.
  */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
@@ -324,14 +327,216 @@ static double relative_error(const double a[3][4], const double scale[3], double
 
 /* ---- the window ----------------------------------------------------------------------------------------- */
 
+/* ---- an eq. 6/7 row binds: Lawson & Hanson's LSI -> LDP -> NNLS on R3, as fast._lsi ------------------------ */
+
+static int small_qr(const double *m, const Py_ssize_t *cols, int count, double q[4][4], double r[4][4]) {
+    /* modified Gram-Schmidt, twice, on the columns cols of m (4 x K, column j at m + 4 j); 0 if the last is
+     * (nearly) dependent on the others */
+    for (int c = 0; c < count; c++) {
+        const double *a = m + 4 * cols[c];
+        double v[4] = {a[0], a[1], a[2], a[3]};
+        double size = sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2] + v[3] * v[3]);
+        for (int i = 0; i < c; i++)
+            r[i][c] = 0.0;
+        for (int pass = 0; pass < 2; pass++) {
+            for (int i = 0; i < c; i++) {
+                double dot = q[i][0] * v[0] + q[i][1] * v[1] + q[i][2] * v[2] + q[i][3] * v[3];
+                r[i][c] += dot;
+                for (int l = 0; l < 4; l++)
+                    v[l] -= dot * q[i][l];
+            }
+        }
+        double norm = sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2] + v[3] * v[3]);
+        if (!(norm > 1e-12 * size))
+            return 0;
+        r[c][c] = norm;
+        for (int l = 0; l < 4; l++)
+            q[c][l] = v[l] / norm;
+    }
+    return 1;
+}
+
+static int passive_solve(const double *m, const Py_ssize_t *cols, int count, const double t[4], double z[4]) {
+    /* least squares of the passive columns against t; 0 if they are (nearly) dependent */
+    double q[4][4], r[4][4];
+    if (!small_qr(m, cols, count, q, r))
+        return 0;
+    for (int c = count - 1; c >= 0; c--) {
+        double value = q[c][0] * t[0] + q[c][1] * t[1] + q[c][2] * t[2] + q[c][3] * t[3];
+        for (int i = c + 1; i < count; i++)
+            value -= r[c][i] * z[i];
+        z[c] = value / r[c][c];
+    }
+    return 1;
+}
+
+static int nnls4(const double *m, Py_ssize_t size, const double t[4], double *u, char *flags, Py_ssize_t max_iter) {
+    /* Lawson & Hanson's NNLS: u >= 0 minimising ||m u - t|| for m 4 x size (column j at m + 4 j); 0 if the
+     * iterations run out. flags: 1 passive, 2 left out until the next column enters (dependent or z <= 0). */
+    Py_ssize_t passive[4];
+    int count = 0;
+    memset(flags, 0, (size_t)size);
+    for (Py_ssize_t j = 0; j < size; j++)
+        u[j] = 0.0;
+    Py_ssize_t iterations = 0;
+    for (;;) {
+        double resid[4] = {t[0], t[1], t[2], t[3]};
+        for (int c = 0; c < count; c++)
+            for (int l = 0; l < 4; l++)
+                resid[l] -= m[4 * passive[c] + l] * u[passive[c]];
+        Py_ssize_t best = -1;
+        double top = 1e-13;
+        for (Py_ssize_t j = 0; j < size; j++) {
+            if (flags[j])
+                continue;
+            const double *a = m + 4 * j;
+            double w = a[0] * resid[0] + a[1] * resid[1] + a[2] * resid[2] + a[3] * resid[3];
+            if (w > top) {
+                top = w;
+                best = j;
+            }
+        }
+        if (best < 0 || count == 4)
+            return 1;
+        passive[count] = best;
+        double z[4];
+        if (!passive_solve(m, passive, count + 1, t, z) || !(z[count] > 0.0)) {
+            flags[best] = 2; /* the column cannot enter now */
+            continue;
+        }
+        for (Py_ssize_t j = 0; j < size; j++)
+            flags[j] &= 1;
+        flags[best] = 1;
+        count++;
+        for (;;) {
+            if (++iterations > max_iter)
+                return 0;
+            int positive = 1;
+            for (int c = 0; c < count; c++)
+                positive &= z[c] > 0.0;
+            if (positive) {
+                for (int c = 0; c < count; c++)
+                    u[passive[c]] = z[c];
+                break;
+            }
+            double alpha = INFINITY;
+            int hit = -1;
+            for (int c = 0; c < count; c++) {
+                if (z[c] > 0.0)
+                    continue;
+                double ratio = u[passive[c]] / (u[passive[c]] - z[c]);
+                if (ratio < alpha) {
+                    alpha = ratio;
+                    hit = c;
+                }
+            }
+            int kept = 0;
+            for (int c = 0; c < count; c++) {
+                Py_ssize_t j = passive[c];
+                u[j] += alpha * (z[c] - u[j]);
+                if (c == hit || u[j] <= 0.0) {
+                    u[j] = 0.0;
+                    flags[j] = 0;
+                } else {
+                    passive[kept++] = j;
+                }
+            }
+            count = kept;
+            if (count == 0 || !passive_solve(m, passive, count, t, z))
+                break;
+        }
+    }
+}
+
+static int lsi(const Problem *pr, double condition, const double *xy, const double *upper, const double *upper_tol,
+               Py_ssize_t n, const double *params, const double scale[3], double phi[3]) {
+    /* fast._lsi: min ||R3 phi - c|| s.t. the usable eq. 6/7 rows and the bounds; 0 where fast._lsi gives None */
+    if (condition * 2e-7 > 1.0) /* fast._lsi's singular-value test (condition = that of R3, the columns scaled alike) */
+        return 0;
+    const double(*a)[4] = pr->a;
+    double r00 = a[0][0], r01 = a[0][1], r02 = a[0][2], r11 = a[1][1], r12 = a[1][2], r22 = a[2][2];
+    /* R3^-1 (upper triangular) and phi_ls = R3^-1 c */
+    double v[3][3] = {{1.0 / r00, -r01 / (r00 * r11), (r01 * r12 - r02 * r11) / (r00 * r11 * r22)},
+                      {0.0, 1.0 / r11, -r12 / (r11 * r22)},
+                      {0.0, 0.0, 1.0 / r22}};
+    double c[3] = {a[0][3], a[1][3], a[2][3]}, ls[3];
+    for (int i = 0; i < 3; i++)
+        ls[i] = v[i][0] * c[0] + v[i][1] * c[1] + v[i][2] * c[2];
+    /* constraint rows g phi <= h: the bounds (phi <= hi, -phi <= -lo), then the rows feasible at the lower bounds */
+    Py_ssize_t rows = 0;
+    for (Py_ssize_t i = 0; i < n; i++) {
+        const double *x = xy + 4 * i;
+        rows += isfinite(upper[i]) && x[0] * params[0] + x[1] * params[1] + x[2] * params[2] <= upper_tol[i];
+    }
+    Py_ssize_t size = 6 + rows;
+    double *m = PyMem_Malloc((size_t)size * 6 * sizeof(double)); /* 4 size for m, size for u, size bytes of flags */
+    if (m == NULL)
+        return 0;
+    double *u = m + 4 * size;
+    char *flags = (char *)(u + size);
+    int feasible = 1;
+    Py_ssize_t column = 0;
+    for (Py_ssize_t i = -6; i < n; i++) {
+        double g[3], h;
+        if (i < 0) {
+            int j = (i + 6) % 3;
+            double sign = i < -3 ? 1.0 : -1.0;
+            g[0] = g[1] = g[2] = 0.0;
+            g[j] = sign;
+            h = i < -3 ? pr->hi[j] : -pr->lo[j];
+        } else {
+            const double *x = xy + 4 * i;
+            if (!(isfinite(upper[i]) && x[0] * params[0] + x[1] * params[1] + x[2] * params[2] <= upper_tol[i]))
+                continue;
+            g[0] = x[0] / scale[0];
+            g[1] = x[1] / scale[1];
+            g[2] = x[2] / scale[2];
+            h = upper[i];
+        }
+        double slack = h - (g[0] * ls[0] + g[1] * ls[1] + g[2] * ls[2]);
+        feasible &= slack >= 0.0;
+        double e[3]; /* g R3^-1 */
+        for (int l = 0; l < 3; l++)
+            e[l] = g[0] * v[0][l] + g[1] * v[1][l] + g[2] * v[2][l];
+        double norm = sqrt(e[0] * e[0] + e[1] * e[1] + e[2] * e[2]);
+        norm = norm > 1e-300 ? norm : 1e-300;
+        double *col = m + 4 * column++;
+        col[0] = -e[0] / norm;
+        col[1] = -e[1] / norm;
+        col[2] = -e[2] / norm;
+        col[3] = -slack / norm;
+    }
+    if (feasible) {
+        memcpy(phi, ls, sizeof(ls));
+        PyMem_Free(m);
+        return 1;
+    }
+    /* LDP: min ||z|| s.t. (-g R3^-1) z >= g phi_ls - h, by NNLS on [E^T; f^T] against (0, 0, 0, 1) */
+    const double target[4] = {0.0, 0.0, 0.0, 1.0};
+    int ok = nnls4(m, size, target, u, flags, 50 * (size + 4));
+    double resid[4] = {-target[0], -target[1], -target[2], -target[3]};
+    for (Py_ssize_t j = 0; ok && j < size; j++)
+        for (int l = 0; l < 4; l++)
+            resid[l] += m[4 * j + l] * u[j];
+    PyMem_Free(m);
+    double length = sqrt(resid[0] * resid[0] + resid[1] * resid[1] + resid[2] * resid[2] + resid[3] * resid[3]);
+    if (!ok || fabs(resid[3]) < 1e-12 || length < 1e-12)
+        return 0; /* the constraints are inconsistent (or the NNLS did not finish): the Python path decides */
+    double z[3] = {-resid[0] / resid[3] + c[0], -resid[1] / resid[3] + c[1], -resid[2] / resid[3] + c[2]};
+    for (int i = 0; i < 3; i++)
+        phi[i] = v[i][0] * z[0] + v[i][1] * z[1] + v[i][2] * z[2];
+    clip(pr, phi);
+    return 1;
+}
+
 typedef struct {
-    int status, pattern;
+    int status, pattern, constrained; /* constrained: the LSI solved it (an eq. 6/7 row binds) */
     double condition, theta[3], squares, relative_error, mean_speed;
     Py_ssize_t dropped;
 } Result;
 
-static void fit_rows(const double *xy, const double *upper_tol, Py_ssize_t n, const double *params, Py_ssize_t k,
-                     Py_ssize_t below_zero, double *work, Result *out) {
+static void fit_rows(const double *xy, const double *upper, const double *upper_tol, Py_ssize_t n,
+                     const double *params, Py_ssize_t k, Py_ssize_t below_zero, double *work, Result *out) {
     out->status = STATUS_PYTHON;
     if (n < 4)
         return;
@@ -373,11 +578,15 @@ static void fit_rows(const double *xy, const double *upper_tol, Py_ssize_t n, co
         const double *x = xy + 4 * i;
         if (x[0] * theta[0] + x[1] * theta[1] + x[2] * theta[2] <= upper_tol[i])
             continue;
-        if (!dropped)
-            return; /* a binding eq. 6/7 row: the LSI of the Python path */
-        /* a row dropped (infeasible at the lower bounds) may be violated; any other may not */
-        if (x[0] * params[0] + x[1] * params[1] + x[2] * params[2] <= upper_tol[i])
-            return;
+        /* a row dropped (infeasible at the lower bounds) may be violated; any other binds: the LSI */
+        if (!dropped || x[0] * params[0] + x[1] * params[1] + x[2] * params[2] <= upper_tol[i]) {
+            if (!lsi(&pr, condition, xy, upper, upper_tol, n, params, scale, phi))
+                return;
+            out->constrained = 1;
+            for (int j = 0; j < 3; j++)
+                theta[j] = phi[j] / scale[j];
+            break;
+        }
     }
     double e0 = pr.a[0][0] * phi[0] + pr.a[0][1] * phi[1] + pr.a[0][2] * phi[2] - pr.a[0][3];
     double e1 = pr.a[1][1] * phi[1] + pr.a[1][2] * phi[2] - pr.a[1][3];
@@ -391,6 +600,22 @@ static void fit_rows(const double *xy, const double *upper_tol, Py_ssize_t n, co
     out->dropped = dropped;
     out->mean_speed = r01 / r00; /* R's first row is q0^T [x y], q0 = -+ ones / sqrt(n) */
     out->status = STATUS_OK;
+}
+
+static PyObject *result_tuple(const Result *out, PyObject *extra) {
+    /* (status, pattern, constrained, condition, theta0, theta1, theta2, squares, relative_error, mean_speed,
+     * dropped) + extra (a tuple, or NULL); steals the reference to extra */
+    PyObject *head = Py_BuildValue("(iiidddddddn)", out->status, out->pattern, out->constrained, out->condition,
+                                   out->theta[0], out->theta[1], out->theta[2], out->squares, out->relative_error,
+                                   out->mean_speed, out->dropped);
+    if (head == NULL || extra == NULL) {
+        Py_XDECREF(extra);
+        return head;
+    }
+    PyObject *all = PySequence_Concat(head, extra);
+    Py_DECREF(head);
+    Py_DECREF(extra);
+    return all;
 }
 
 static int check_params(const double *p, Py_ssize_t size) {
@@ -420,54 +645,46 @@ static int float64_buffer(PyObject *obj, Py_buffer *view, int ndim, const char *
 
 static PyObject *kernel_fit(PyObject *module, PyObject *const *args, Py_ssize_t nargs) {
     (void)module;
-    if (nargs != 5) {
-        PyErr_SetString(PyExc_TypeError, "fit(xy, upper_tol, params, pattern, below_zero) takes 5 arguments");
+    if (nargs != 6) {
+        PyErr_SetString(PyExc_TypeError, "fit(xy, upper, upper_tol, params, pattern, below_zero) takes 6 arguments");
         return NULL;
     }
-    int pattern = (int)PyLong_AsLong(args[3]);
-    Py_ssize_t below_zero = PyLong_AsSsize_t(args[4]);
+    int pattern = (int)PyLong_AsLong(args[4]);
+    Py_ssize_t below_zero = PyLong_AsSsize_t(args[5]);
     if (PyErr_Occurred())
         return NULL;
     if (pattern < 0 || pattern > 26) {
         PyErr_SetString(PyExc_ValueError, "pattern: an active-set code 0..26");
         return NULL;
     }
-    Py_buffer xy, tol, params;
-    if (!float64_buffer(args[0], &xy, 2, "xy"))
-        return NULL;
-    if (!float64_buffer(args[1], &tol, 1, "upper_tol")) {
-        PyBuffer_Release(&xy);
-        return NULL;
-    }
-    if (!float64_buffer(args[2], &params, 1, "params")) {
-        PyBuffer_Release(&xy);
-        PyBuffer_Release(&tol);
-        return NULL;
-    }
-    Py_ssize_t n = xy.shape[0];
-    const double *p = params.buf;
-    int k = -1;
+    static const char *names[] = {"xy", "upper", "upper_tol", "params"};
+    Py_buffer views[4];
+    int held = 0;
+    for (; held < 4; held++)
+        if (!float64_buffer(args[held], &views[held], held == 0 ? 2 : 1, names[held]))
+            break;
     PyObject *result = NULL;
-    if (tol.shape[0] != n) {
-        PyErr_SetString(PyExc_ValueError, "upper_tol: one entry per row of xy");
-    } else if ((k = check_params(p, params.shape[0])) >= 0) {
+    Py_ssize_t n = views[0].shape[0];
+    int k = -1;
+    if (held < 4) {
+        /* the error is set */
+    } else if (views[1].shape[0] != n || views[2].shape[0] != n) {
+        PyErr_SetString(PyExc_ValueError, "upper, upper_tol: one entry per row of xy");
+    } else if ((k = check_params(views[3].buf, views[3].shape[0])) >= 0) {
         double stack[STACK_ROWS * 4];
         double *work = n <= STACK_ROWS ? stack : PyMem_Malloc((size_t)n * 4 * sizeof(double));
         if (work == NULL) {
             PyErr_NoMemory();
         } else {
             Result out = {.pattern = pattern};
-            fit_rows(xy.buf, tol.buf, n, p, k, below_zero, work, &out);
+            fit_rows(views[0].buf, views[1].buf, views[2].buf, n, views[3].buf, k, below_zero, work, &out);
             if (work != stack)
                 PyMem_Free(work);
-            result = Py_BuildValue("(iidddddddn)", out.status, out.pattern, out.condition, out.theta[0],
-                                   out.theta[1], out.theta[2], out.squares, out.relative_error, out.mean_speed,
-                                   out.dropped);
+            result = result_tuple(&out, NULL);
         }
     }
-    PyBuffer_Release(&xy);
-    PyBuffer_Release(&tol);
-    PyBuffer_Release(&params);
+    for (int i = 0; i < held; i++)
+        PyBuffer_Release(&views[i]);
     return result;
 }
 
@@ -734,14 +951,13 @@ static PyObject *window_fit(Window *w, PyObject *arg) {
         return NULL;
     }
     Result out = {.pattern = (int)pattern};
-    Py_ssize_t n = w->r_stop - w->r_start;
+    Py_ssize_t n = w->r_stop - w->r_start, start = w->r_start;
     if (w->negatives == 0)
-        fit_rows(w->xy + 4 * w->r_start, w->upper_tol + w->r_start, n, w->params, w->k, w->below_zero, w->work, &out);
+        fit_rows(w->xy + 4 * start, w->upper + start, w->upper_tol + start, n, w->params, w->k, w->below_zero, w->work,
+                 &out);
     else
         out.status = STATUS_PYTHON;
-    return Py_BuildValue("(iidddddddnndi)", out.status, out.pattern, out.condition, out.theta[0], out.theta[1],
-                         out.theta[2], out.squares, out.relative_error, out.mean_speed, out.dropped, n, window_span(w),
-                         window_regime(w));
+    return result_tuple(&out, Py_BuildValue("(ndi)", n, window_span(w), window_regime(w)));
 }
 
 static PyObject *window_view(Window *w, PyObject *Py_UNUSED(ignored)) {

@@ -14,10 +14,10 @@ construction): SAE, fewer than 4 rows, infinite bounds, negative design entries,
 above ``MAX_CONDITION`` (near rank deficiency: the exact solution is not unique, the reference picks
 one), or any numerical doubt. Agreement with the reference: test/window/test_window_fast.py.
 
-The common case runs in C (``_kernel.c``: the same QR, active sets, condition number and standard
-errors in the same order of operations, no interpreter per step); the windows it leaves (a binding
-eq. 6/7 row, or any of the cases above) take the Python path below, which is also the whole path where
-the package was installed without a C compiler. Agreement of the two: test/window/test_window_kernel.py.
+The path runs in C (``_kernel.c``: the same QR, active sets, condition number, LSI and standard errors
+in the same order of operations, no interpreter per step); the windows it leaves (the cases above, or
+inconsistent eq. 6/7 rows) take the Python path below, which is also the whole path where the package
+was installed without a C compiler. Agreement of the two: test/window/test_window_kernel.py.
 """
 
 from __future__ import annotations
@@ -110,10 +110,9 @@ class FastFit:
     def fit_window(self, window, context: dict) -> WindowFit:
         """The fit of a streaming window: the kernel's Window (fitted in place) or calibrator._PyWindow."""
         if self.compiled:
-            status, code, *numbers, n, span, regime = window.fit(CODES[self.pattern])
-            if not status:
-                self.kernel_windows += 1
-                self.pattern = PATTERNS_BY_CODE[code]
+            *numbers, n, span, regime = window.fit(CODES[self.pattern])
+            numbers = self._kernel_numbers(numbers)
+            if numbers is not None:
                 return self._result(numbers, n, span, regime, context)
             xy, upper, upper_tol = (np.frombuffer(b) for b in window.view())
             xy = xy.reshape(-1, 4)
@@ -126,7 +125,7 @@ class FastFit:
                     span=span)  # fmt: skip
 
     def _fast(self, xy, upper, upper_tol, v, regime, context, below_zero, span) -> WindowFit | None:
-        numbers = self._compiled(xy, upper_tol, below_zero) if self.compiled else None
+        numbers = self._compiled(xy, upper, upper_tol, below_zero) if self.compiled else None
         if numbers is None:
             numbers = self._numbers(xy, upper, upper_tol, below_zero)
             if numbers is None:
@@ -143,16 +142,22 @@ class FastFit:
                         condition=condition, estimate=(theta0, theta1, theta2), objective=math.sqrt(squares / n),
                         relative_error=relative_error, dropped=dropped, reason=reason, **context)  # fmt: skip
 
-    def _compiled(self, xy, upper_tol, below_zero) -> tuple | None:
+    def _compiled(self, xy, upper, upper_tol, below_zero) -> list | None:
         """The window's numbers by the C kernel; None where it leaves the window to :meth:`_numbers`."""
         try:
-            status, code, *numbers = _kernel.fit(xy, upper_tol, self._params, CODES[self.pattern],
-                                                 -1 if below_zero is None else below_zero)  # fmt: skip
-        except (BufferError, ValueError):  # not a C-contiguous float64 array: the Python path takes it
+            out = _kernel.fit(xy, upper, upper_tol, self._params, CODES[self.pattern],
+                              -1 if below_zero is None else below_zero)  # fmt: skip
+        except (BufferError, ValueError):  # not C-contiguous float64 arrays: the Python path takes them
             return None
+        return self._kernel_numbers(out)
+
+    def _kernel_numbers(self, out) -> list | None:
+        """The kernel's (status, pattern, constrained, numbers...) -> the numbers, counted; None: status 1."""
+        status, code, constrained, *numbers = out
         if status:
             return None
         self.kernel_windows += 1
+        self.constrained += constrained
         self.pattern = PATTERNS_BY_CODE[code]
         return numbers
 
