@@ -21,7 +21,9 @@ from window_synthetic import train_spec
 from train_calib.window import WindowCalibrator, WindowConfig
 from train_calib.window import _kernel as kernel  # make setup builds it (the messages need a C compiler anyway)
 from train_calib.window import fast as fast_module
+from train_calib.window.calibrator import _PyWindow
 from train_calib.window.fast import CODES, MAX_CONDITION, PATTERNS, FastFit
+from train_calib.window.model import StepModel
 
 FLOATS = ("speed_span", "mean_speed", "condition_number")
 EXACT = ("stamp_ns", "run_id", "window_length", "sample_count", "gof_kind", "regime", "ill_posed",
@@ -222,10 +224,9 @@ def _random_rows(rng, count):
 @pytest.mark.parametrize("window_s", [3, 60, 700])
 def test_window_keeps_what_the_python_window_keeps(window_s):
     """Steps, rows, counters, span and dominant regime after every step; growth past the first capacity."""
-    from train_calib.window.calibrator import _PyWindow
-
     rng = np.random.default_rng(window_s)
-    c_window, py_window = kernel.Window(FastFit(TRAIN, WindowConfig())._params), _PyWindow(16)
+    c_window = kernel.Window(FastFit(TRAIN, WindowConfig())._params)
+    py_window = _PyWindow(StepModel(TRAIN, WindowConfig()), 16)
     for end_ns, regime, row, keep in _random_rows(rng, 2500):
         for w in (c_window, py_window):
             w.add(end_ns, regime, row, keep)
@@ -282,3 +283,47 @@ def test_regime_codes_outside_uint8_count_as_unknown():
             fits[compiled, regime] = [calibrator.update(series[i], regime) for i in range(200)]
     for key, values in fits.items():
         assert [f.regime if f else None for f in values] == [f.regime if f else None for f in fits[key[0], 0]], key
+
+
+@pytest.mark.parametrize("scheme", ["forward", "midpoint", "trapezoid"])
+@pytest.mark.parametrize("constraints", [(True, True), (False, True), (False, False)])
+def test_pushed_samples_make_the_python_rows_bit_for_bit(scheme, constraints):
+    """push: the C step model (force, limit, row, regime from power) against StepModel, on random samples with
+    gaps, stops, missing power, braking (left out) and topic regimes."""
+    config = WindowConfig(difference_scheme=scheme, traction_constraint=constraints[0],
+                          adhesion_constraint=constraints[1], max_gap=2.0, window_length=40.0)  # fmt: skip
+    step = StepModel(TRAIN, config)
+    c_window = kernel.Window(FastFit(TRAIN, config)._params, step.params())
+    py_window = _PyWindow(step, 16)
+    rng = np.random.default_rng(len(scheme) + 3 * sum(constraints))
+    t_ns = 0
+    invalid = 0
+    for k in range(3000):
+        t_ns += int(rng.choice([0.5, 1.0, 1.0, 1.0, 3.0]) * 1e9)
+        v = max(rng.uniform(-2.0, 45.0), 0.0)
+        sample = (t_ns, t_ns * 1e-9, v, bool(rng.random() < 0.95), rng.uniform(-2e5, 4e6),
+                  rng.uniform(0.0, 3e6) if rng.random() < 0.3 else 0.0, rng.normal(0.0, 0.05),
+                  rng.random() if rng.random() < 0.3 else 0.0, rng.uniform(0.0, 0.02),
+                  int(rng.choice([-1, -1, 1, 2, 3, 4])), t_ns - 40_000_000_000)  # fmt: skip
+        flags = c_window.push(*sample), py_window.push(*sample)
+        assert flags[0] == flags[1], k
+        invalid += flags[0]
+        for name in ("steps", "rows", "negatives", "below_zero", "speed_span", "regime"):
+            assert getattr(c_window, name) == getattr(py_window, name), (name, k)
+        if k % 50 == 0:
+            xy, upper, upper_tol, _ = py_window.arrays()
+            c_xy, c_upper, c_tol = (np.frombuffer(b) for b in c_window.view())
+            assert c_xy.tobytes() == xy.tobytes() and c_upper.tobytes() == upper.tobytes()
+            assert c_tol.tobytes() == upper_tol.tobytes()
+    assert 100 < invalid < 2000 and c_window.rows > 10
+    c_window.clear()
+    c_window.push(*sample)  # after clear(), no step from the sample before it
+    assert c_window.steps == 0
+
+
+def test_push_needs_the_step_model():
+    window = kernel.Window(FastFit(TRAIN, WindowConfig())._params)
+    with pytest.raises(ValueError, match="push: this Window was made without step_params"):
+        window.push(0, 0.0, 10.0, True, 1e5, 0.0, 0.0, 0.0, 0.0, -1, 0)
+    with pytest.raises(ValueError, match=r"step_params: the 19 values of StepModel\.params\(\)"):
+        kernel.Window(FastFit(TRAIN, WindowConfig())._params, np.zeros(18))

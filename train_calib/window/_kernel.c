@@ -18,6 +18,16 @@
  * form of fast._scaled_condition or, where that is loose, one-sided Jacobi singular values (LAPACK dgesdd
  * in Python), the LSI fast._lsi's reduction with Lawson & Hanson's NNLS (scipy's nnls in Python): equal to
  * round-off. Agreement with the Python path: test/window/test_window_kernel.py.
+ *
+ * Window(params): the streaming calibrator's window (steps with their regimes, rows, running speed extremes)
+ * and fit() on its own arrays, calibrator._PyWindow's twin.
+ *
+ * Memory check after a change (the window tests on an ASan/UBSan build, then the normal build back):
+ *   gcc -O1 -g -std=c99 -fsanitize=address,undefined -fPIC -shared -I"$(.venv/bin/python -c 'import sysconfig;
+ *     print(sysconfig.get_paths()["include"])')" train_calib/window/_kernel.c -o train_calib/window/_kernel.cpython-311-x86_64-linux-gnu.so
+ *   ASAN_OPTIONS=detect_leaks=0 LD_PRELOAD="$(gcc -print-file-name=libasan.so):$(gcc -print-file-name=libubsan.so)"
+ *     .venv/bin/python -m pytest -n0 -p no:cacheprovider test/window
+ *   .venv/bin/python setup.py -q build_ext --inplace --force   (the normal build again)
  */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
@@ -688,6 +698,103 @@ static PyObject *kernel_fit(PyObject *module, PyObject *const *args, Py_ssize_t 
     return result;
 }
 
+/* ---- one step of the window's rows: model.StepModel in C (same operations, same order: equal bit for bit) ------ */
+
+#define STEP_PARAMS 19
+#define SCHEME_FORWARD 0
+#define SCHEME_TRAPEZOID 2
+
+typedef struct {
+    double mass, eta, auxiliary_w, tunnel_factor, c0, c2, v_transition, adhesive_fraction, gamma, gravity;
+    double min_speed, max_gap, constraint_sigma, effort_tolerance, cruise_tolerance;
+    int traction, adhesion, scheme, exclude_braking;
+} StepModel;
+
+typedef struct {
+    double t, v, f, g, tau, var, lim; /* s, m/s, N/kg, N/kg, 0..1, (m/s)^2, N/kg */
+    int regime;                       /* of the step that starts here: -1 from power */
+} Sample;
+
+static void step_model(const double *p, StepModel *m) {
+    /* the order of model.StepModel.params() */
+    *m = (StepModel){.mass = p[0], .eta = p[1], .auxiliary_w = p[2], .tunnel_factor = p[3], .traction = p[4] != 0.0,
+                     .c0 = p[5], .c2 = p[6], .v_transition = p[7], .adhesion = p[8] != 0.0,
+                     .adhesive_fraction = p[9], .gamma = p[10], .gravity = p[11], .scheme = (int)p[12],
+                     .min_speed = p[13], .max_gap = p[14], .constraint_sigma = p[15], .effort_tolerance = p[16],
+                     .cruise_tolerance = p[17], .exclude_braking = p[18] != 0.0};
+}
+
+static double step_force(const StepModel *m, double v, double power_consumed, double power_regenerated) {
+    double consumed = power_consumed - m->auxiliary_w;
+    double wheel = (consumed > 0.0 ? m->eta * consumed : 0.0) - power_regenerated / m->eta;
+    if (consumed < 0.0)
+        wheel = wheel + consumed / m->eta;
+    return v >= m->min_speed ? wheel / (m->min_speed > v ? m->min_speed : v) / m->mass : NAN;
+}
+
+static double step_limit(const StepModel *m, double v) {
+    double limit = INFINITY;
+    if (m->traction) {
+        double envelope;
+        if (v <= m->v_transition)
+            envelope = m->c0 + 0.0 * v;
+        else
+            envelope = v > 0.0 ? m->c2 / (1e-12 > v ? 1e-12 : v) : INFINITY;
+        envelope = 0.0 > envelope ? 0.0 : envelope; /* Python's max(envelope, 0.0), min(limit, ...) below */
+        limit = envelope < limit ? envelope : limit;
+    }
+    if (m->adhesion) {
+        double mu = 0.161 + 7.5 / (3.6 * v + 44.0);
+        double adhesion = mu * m->gravity * m->adhesive_fraction / m->gamma;
+        limit = adhesion < limit ? adhesion : limit;
+    }
+    return limit;
+}
+
+static int step_row(const StepModel *m, const Sample *s0, const Sample *s1, double row[8]) {
+    /* model.StepModel.row: (x0, x1, x2, y, upper, v, acceleration, force); 0 if the step is not valid */
+    double dt = s1->t - s0->t;
+    if (!(dt > 0.0 && dt <= m->max_gap))
+        return 0;
+    double a = (s1->v - s0->v) / dt;
+    double c20 = s0->v * s0->v * (1.0 + m->tunnel_factor * s0->tau);
+    double x1, x2, f, g, v, lim;
+    int speed_ok;
+    if (m->scheme == SCHEME_FORWARD) {
+        x1 = s0->v, x2 = c20, f = s0->f, g = s0->g, v = s0->v, lim = s0->lim;
+        speed_ok = s0->v >= m->min_speed;
+    } else {
+        double c21 = s1->v * s1->v * (1.0 + m->tunnel_factor * s1->tau);
+        x1 = 0.5 * (s0->v + s1->v), x2 = 0.5 * (c20 + c21);
+        g = 0.5 * (s0->g + s1->g), v = 0.5 * (s0->v + s1->v);
+        if (m->scheme == SCHEME_TRAPEZOID) {
+            f = 0.5 * (s0->f + s1->f), lim = 0.5 * (s0->lim + s1->lim);
+            speed_ok = s0->v >= m->min_speed && s1->v >= m->min_speed;
+        } else {
+            f = s0->f, lim = s0->lim;
+            speed_ok = s0->v >= m->min_speed;
+        }
+    }
+    double y = f - g - a;
+    double variance = s0->var + s1->var;
+    double margin = variance >= 0.0 ? m->constraint_sigma * sqrt(variance) / dt : NAN;
+    double upper = lim - g - a + margin;
+    if (!(speed_ok && isfinite(y) && isfinite(x1) && isfinite(x2)) || isnan(upper))
+        return 0;
+    double values[8] = {1.0, x1, x2, y, upper, v, a, f};
+    memcpy(row, values, sizeof(values));
+    return 1;
+}
+
+static int step_regime(const StepModel *m, double force, double acceleration) {
+    /* model.StepModel.regime: COASTING 3, CRUISING 2, TRACTION 1, BRAKING 4 */
+    if (fabs(force) <= m->effort_tolerance)
+        return 3;
+    if (fabs(acceleration) <= m->cruise_tolerance)
+        return 2;
+    return force > 0.0 ? 1 : 4;
+}
+
 /* ---- Window: the streaming calibrator's window (steps with their regimes, rows) and its fit -------------- */
 
 /* calibrator._RegimeTally, _RowBuffer and the fit above in one object: Window(params), then per sample
@@ -718,6 +825,10 @@ typedef struct {
     char *negative;
     Py_ssize_t r_start, r_stop, r_cap, negatives, below_zero;
     Extremes fastest, slowest;
+    /* the step model (model.StepModel) and the last sample pushed */
+    StepModel step;
+    int has_step, has_last;
+    Sample last;
 } Window;
 
 static int grow(void **array, Py_ssize_t cap, size_t item) {
@@ -783,6 +894,7 @@ static void window_clear(Window *w) {
     w->fastest.start = w->fastest.stop = w->slowest.start = w->slowest.stop = 0;
     memset(w->counts, 0, sizeof(w->counts));
     memset(w->newest, 0, sizeof(w->newest));
+    w->has_last = 0;
 }
 
 static void window_dealloc(Window *w) {
@@ -803,10 +915,24 @@ static void window_dealloc(Window *w) {
 }
 
 static PyObject *window_new(PyTypeObject *type, PyObject *args, PyObject *kwargs) {
-    PyObject *params_obj;
-    static char *keywords[] = {"params", NULL};
-    if (!PyArg_ParseTupleAndKeywords(args, kwargs, "O:Window", keywords, &params_obj))
+    PyObject *params_obj, *step_obj = Py_None;
+    static char *keywords[] = {"params", "step_params", NULL};
+    if (!PyArg_ParseTupleAndKeywords(args, kwargs, "O|O:Window", keywords, &params_obj, &step_obj))
         return NULL;
+    StepModel step = {0};
+    if (step_obj != Py_None) {
+        Py_buffer step_view;
+        if (!float64_buffer(step_obj, &step_view, 1, "step_params"))
+            return NULL;
+        int ok = step_view.shape[0] == STEP_PARAMS;
+        if (ok)
+            step_model(step_view.buf, &step);
+        PyBuffer_Release(&step_view);
+        if (!ok) {
+            PyErr_Format(PyExc_ValueError, "step_params: the %d values of StepModel.params()", STEP_PARAMS);
+            return NULL;
+        }
+    }
     Py_buffer view;
     if (!float64_buffer(params_obj, &view, 1, "params"))
         return NULL;
@@ -817,6 +943,8 @@ static PyObject *window_new(PyTypeObject *type, PyObject *args, PyObject *kwargs
         return NULL;
     }
     w->k = k;
+    w->step = step;
+    w->has_step = step_obj != Py_None;
     const Py_ssize_t cap = 64;
     w->s_cap = w->r_cap = w->fastest.cap = w->slowest.cap = cap;
     w->params = PyMem_Malloc((size_t)view.shape[0] * sizeof(double));
@@ -844,6 +972,41 @@ static PyObject *window_new(PyTypeObject *type, PyObject *args, PyObject *kwargs
     return (PyObject *)w;
 }
 
+static int add_step(Window *w, long long end_ns, int regime, const double *row, int keep) {
+    /* a step ending at end_ns with its regime, or not valid (row NULL); its row kept for the fit if keep */
+    if (!steps_room(w))
+        return 0;
+    w->step_ns[w->s_stop] = end_ns;
+    w->step_regime[w->s_stop++] = row != NULL ? regime : -1;
+    if (row != NULL && regime >= 0) {
+        w->counts[regime]++;
+        w->newest[regime] = ++w->sequence;
+    }
+    if (row == NULL || !keep)
+        return 1;
+    if (!rows_room(w))
+        return 0;
+    Py_ssize_t i = w->r_stop;
+    double upper = row[4], upper_tol = upper + 1e-12 * fmax(1.0, fabs(upper));
+    w->row_ns[i] = end_ns;
+    memcpy(w->xy + 4 * i, row, 4 * sizeof(double));
+    w->upper[i] = upper;
+    w->upper_tol[i] = upper_tol;
+    w->below_zero += upper_tol < 0.0;
+    w->negative[i] = row[0] < 0.0 || row[1] < 0.0 || row[2] < 0.0;
+    w->negatives += w->negative[i];
+    w->r_stop++;
+    return extremes_push(&w->fastest, end_ns, row[1], 1) && extremes_push(&w->slowest, end_ns, row[1], 0);
+}
+
+static int regime_code(long regime) {
+    if (regime < -1 || regime >= REGIMES) {
+        PyErr_SetString(PyExc_ValueError, "regime: -1 (no valid step) or a DrivingRegime code 0..255");
+        return 0;
+    }
+    return 1;
+}
+
 static PyObject *window_add(Window *w, PyObject *const *args, Py_ssize_t nargs) {
     if (nargs != 4) {
         PyErr_SetString(PyExc_TypeError, "add(end_ns, regime, row, keep) takes 4 arguments");
@@ -852,12 +1015,8 @@ static PyObject *window_add(Window *w, PyObject *const *args, Py_ssize_t nargs) 
     long long end_ns = PyLong_AsLongLong(args[0]);
     long regime = PyLong_AsLong(args[1]);
     int keep = PyObject_IsTrue(args[3]);
-    if (PyErr_Occurred())
+    if (PyErr_Occurred() || !regime_code(regime))
         return NULL;
-    if (regime < -1 || regime >= REGIMES) {
-        PyErr_SetString(PyExc_ValueError, "regime: -1 (no valid step) or a DrivingRegime code 0..255");
-        return NULL;
-    }
     double row[5];
     int has_row = args[2] != Py_None;
     if (has_row) {
@@ -870,37 +1029,56 @@ static PyObject *window_add(Window *w, PyObject *const *args, Py_ssize_t nargs) 
         if (PyErr_Occurred())
             return NULL;
     }
-    if (!steps_room(w))
-        return NULL;
-    w->step_ns[w->s_stop] = end_ns;
-    w->step_regime[w->s_stop++] = has_row ? (int)regime : -1;
-    if (has_row && regime >= 0) {
-        w->counts[regime]++;
-        w->newest[regime] = ++w->sequence;
-    }
-    if (!(has_row && keep))
-        Py_RETURN_NONE;
-    if (!rows_room(w))
-        return NULL;
-    Py_ssize_t i = w->r_stop;
-    double upper = row[4], upper_tol = upper + 1e-12 * fmax(1.0, fabs(upper));
-    w->row_ns[i] = end_ns;
-    memcpy(w->xy + 4 * i, row, 4 * sizeof(double));
-    w->upper[i] = upper;
-    w->upper_tol[i] = upper_tol;
-    w->below_zero += upper_tol < 0.0;
-    w->negative[i] = row[0] < 0.0 || row[1] < 0.0 || row[2] < 0.0;
-    w->negatives += w->negative[i];
-    w->r_stop++;
-    if (!extremes_push(&w->fastest, end_ns, row[1], 1) || !extremes_push(&w->slowest, end_ns, row[1], 0))
+    if (!add_step(w, end_ns, (int)regime, has_row ? row : NULL, keep))
         return NULL;
     Py_RETURN_NONE;
 }
 
-static PyObject *window_expire(Window *w, PyObject *arg) {
-    long long min_ns = PyLong_AsLongLong(arg);
-    if (min_ns == -1 && PyErr_Occurred())
+static void expire(Window *w, long long min_ns);
+
+static PyObject *window_push(Window *w, PyObject *const *args, Py_ssize_t nargs) {
+    /* calibrator._PyWindow.push */
+    if (nargs != 11) {
+        PyErr_SetString(PyExc_TypeError, "push(end_ns, t, v, power_valid, power_consumed, power_regenerated, "
+                                         "track_force, tunnel_fraction, v_variance, regime, min_ns) takes 11 arguments");
         return NULL;
+    }
+    if (!w->has_step) {
+        PyErr_SetString(PyExc_ValueError, "push: this Window was made without step_params");
+        return NULL;
+    }
+    long long end_ns = PyLong_AsLongLong(args[0]), min_ns = PyLong_AsLongLong(args[10]);
+    double t = PyFloat_AsDouble(args[1]), v = PyFloat_AsDouble(args[2]);
+    int power_valid = PyObject_IsTrue(args[3]);
+    double consumed = PyFloat_AsDouble(args[4]), regenerated = PyFloat_AsDouble(args[5]);
+    double g = PyFloat_AsDouble(args[6]), tau = PyFloat_AsDouble(args[7]), var = PyFloat_AsDouble(args[8]);
+    long regime = PyLong_AsLong(args[9]);
+    if (PyErr_Occurred() || !regime_code(regime))
+        return NULL;
+    const StepModel *m = &w->step;
+    Sample sample = {t, v, power_valid ? step_force(m, v, consumed, regenerated) : NAN, g, tau, var,
+                     step_limit(m, v), (int)regime};
+    int invalid = 0;
+    if (w->has_last) {
+        double row[8];
+        if (!step_row(m, &w->last, &sample, row)) {
+            invalid = 1;
+            if (!add_step(w, end_ns, -1, NULL, 0))
+                return NULL;
+        } else {
+            int step_regime_code = w->last.regime >= 0 ? w->last.regime : step_regime(m, row[7], row[6]);
+            int keep = !(m->exclude_braking && step_regime_code == 4);
+            if (!add_step(w, end_ns, step_regime_code, row, keep))
+                return NULL;
+        }
+    }
+    w->last = sample;
+    w->has_last = 1;
+    expire(w, min_ns);
+    return PyBool_FromLong(invalid);
+}
+
+static void expire(Window *w, long long min_ns) {
     while (w->s_start < w->s_stop && w->step_ns[w->s_start] <= min_ns) {
         int regime = w->step_regime[w->s_start++];
         if (regime >= 0)
@@ -915,6 +1093,13 @@ static PyObject *window_expire(Window *w, PyObject *arg) {
         w->fastest.start++;
     while (w->slowest.start < w->slowest.stop && w->slowest.ns[w->slowest.start] <= min_ns)
         w->slowest.start++;
+}
+
+static PyObject *window_expire(Window *w, PyObject *arg) {
+    long long min_ns = PyLong_AsLongLong(arg);
+    if (min_ns == -1 && PyErr_Occurred())
+        return NULL;
+    expire(w, min_ns);
     Py_RETURN_NONE;
 }
 
@@ -991,6 +1176,10 @@ static PyMethodDef window_methods[] = {
     {"add", (PyCFunction)(void (*)(void))window_add, METH_FASTCALL,
      "add(end_ns, regime, row, keep): a step ending at end_ns (ns); regime -1 and row None: not a valid step; "
      "row (x0, x1, x2, y, upper, ...) as StepModel.row, kept among the rows if keep."},
+    {"push", (PyCFunction)(void (*)(void))window_push, METH_FASTCALL,
+     "push(end_ns, t, v, power_valid, power_consumed, power_regenerated, track_force, tunnel_fraction, v_variance, "
+     "regime, min_ns) -> bool: a sample (ns, s, m/s, W, W, N/kg, 0..1, (m/s)^2, its regime or -1: from power): the "
+     "step from the last sample added, then expire(min_ns); True if that step was not valid."},
     {"expire", (PyCFunction)window_expire, METH_O, "expire(min_ns): drop the steps ending at or before min_ns."},
     {"clear", (PyCFunction)window_clear_method, METH_NOARGS, "clear(): an empty window."},
     {"fit", (PyCFunction)window_fit, METH_O,

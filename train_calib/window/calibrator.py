@@ -145,11 +145,39 @@ class _RegimeTally:
 
 
 class _PyWindow:
-    """The window's steps (with their regimes) and rows in Python: the interface of the C kernel's Window."""
+    """The window's steps (with their regimes) and rows in Python: the interface of the C kernel's Window.
 
-    def __init__(self, capacity: int) -> None:
+    ``push`` takes each sample: the step from the last one (StepModel) goes in, the steps ending at or
+    before min_ns go out.
+    """
+
+    def __init__(self, step: StepModel, capacity: int) -> None:
+        self._step = step
+        self._exclude_braking = step.config.exclude_braking
         self._rows = _RowBuffer(capacity)
         self._regimes = _RegimeTally()
+        self._last: tuple | None = None  # (regime or -1, (t, v, f, g, tau, v_variance, limit)) of the last sample
+
+    def push(self, end_ns: int, t: float, v: float, power_valid: bool, power_consumed: float,
+             power_regenerated: float, track_force: float, tunnel_fraction: float, v_variance: float, regime: int,
+             min_ns: int) -> bool:  # fmt: skip
+        """A sample (ns, s, m/s, W, W, N/kg, 0..1, (m/s)^2; its regime, -1: from power); True if the step from
+        the last sample to it is not valid."""
+        step = self._step
+        force = step.force(v, power_consumed, power_regenerated) if power_valid else math.nan
+        sample = (t, v, force, track_force, tunnel_fraction, v_variance, step.limit(v))
+        previous, self._last = self._last, (regime, sample)
+        invalid = False
+        if previous is not None:
+            row = step.row(previous[1], sample)
+            if row is None:
+                invalid = True
+                self.add(end_ns, -1, None, False)
+            else:
+                step_regime = previous[0] if previous[0] >= 0 else step.regime(row[7], row[6])
+                self.add(end_ns, step_regime, row, not (self._exclude_braking and step_regime == BRAKING))
+        self.expire(min_ns)
+        return invalid
 
     def add(self, end_ns: int, regime: int, row: tuple | None, keep: bool) -> None:
         """A step ending at end_ns; regime -1 and row None: not a valid step; row kept for the fit if keep."""
@@ -164,6 +192,7 @@ class _PyWindow:
     def clear(self) -> None:
         self._rows.clear()
         self._regimes.clear()
+        self._last = None
 
     @property
     def steps(self) -> int:
@@ -225,14 +254,14 @@ class WindowCalibrator:
     def set_config(self, config: WindowConfig) -> None:
         """New settings: the window restarts (its steps depend on them); published values are kept."""
         self.config = config
-        self._step = StepModel(self.train, config)
+        step = StepModel(self.train, config)
         self._fit = FastFit(self.train, config, self.compiled)
         # the C kernel's window where the fast fit runs in C, else the same in Python
-        self._window = (self._fit.new_window() if self.fast else None) or _PyWindow(
-            max(16, int(2 * config.window_length) + 4)
+        self._window = (self._fit.new_window(step) if self.fast else None) or _PyWindow(
+            step, max(16, int(2 * config.window_length) + 4)
         )
         self._window_ns = round(config.window_length * 1e9)
-        self._last: tuple | None = None  # (stamp_ns, run_id, regime, (t, v, f, g, tau, v_variance, limit))
+        self._last: tuple[int, int] | None = None  # (stamp_ns, run_id) of the last sample taken
 
     @property
     def reference_windows(self) -> int:
@@ -263,16 +292,13 @@ class WindowCalibrator:
         if self._origin_ns is None:
             self._origin_ns = m.stamp_ns
         t = (m.stamp_ns - self._origin_ns) * 1e-9
-        step = self._step
-        force = step.force(m.v, m.power_consumed, m.power_regenerated) if m.power_valid else math.nan
         if cfg.regime_source == "power" or regime is None or not UNKNOWN < regime < 256:
-            regime = None
-        sample = (t, m.v, force, m.track_force, m.tunnel_fraction, m.v_variance, step.limit(m.v))
-        previous, self._last = self._last, (m.stamp_ns, m.run_id, regime, sample)
-        if previous is not None:
-            self._add_step(m.stamp_ns, previous[2], previous[3], sample)
-        min_ns = m.stamp_ns - self._window_ns  # expired with or without power: the window holds window_length
-        self._window.expire(min_ns)
+            regime = -1  # from power
+        self._last = (m.stamp_ns, m.run_id)
+        # the step from the last sample to this one; the window holds window_length with or without power
+        if self._window.push(m.stamp_ns, t, m.v, m.power_valid, m.power_consumed, m.power_regenerated, m.track_force,
+                             m.tunnel_fraction, m.v_variance, regime, m.stamp_ns - self._window_ns):  # fmt: skip
+            self.counts["invalid_step"] += 1
         if not m.power_valid:
             self.counts["no_power"] += 1
             return None
@@ -286,17 +312,6 @@ class WindowCalibrator:
             self.counts["windows_with_dropped_constraints"] += 1
         self.last_fit = fit
         return fit
-
-    def _add_step(self, end_ns: int, regime: int | None, start: tuple, end: tuple) -> None:
-        """The step from the previous sample (its regime, or None: from power) to this one."""
-        row = self._step.row(start, end)
-        if row is None:
-            self.counts["invalid_step"] += 1
-            self._window.add(end_ns, -1, None, False)
-            return
-        if regime is None:
-            regime = self._step.regime(row[7], row[6])
-        self._window.add(end_ns, regime, row, not (self.config.exclude_braking and regime == BRAKING))
 
     def _fit_window(self, stamp_ns: int, run_id: int) -> WindowFit:
         context = {"stamp_ns": stamp_ns, "run_id": run_id, "previous": self.last_fit}

@@ -33,6 +33,7 @@ from ..physics import KMH
 from ..train import TrainSpec
 from .config import WindowConfig
 from .fit import WindowFit, fit_design, ill_posed_reason, make_fit
+from .model import StepModel
 
 MAX_CONDITION = 1e6
 """Above this scaled condition number the window goes to the reference solver (never published at the defaults)."""
@@ -103,9 +104,9 @@ class FastFit:
             fit = fit_design(xy[:, :3], xy[:, 3], upper, v, regime, self.train, self.config, **context)
         return fit
 
-    def new_window(self):
+    def new_window(self, step: StepModel):
         """The C kernel's Window for the streaming calibrator (None: no kernel, or this config is not for it)."""
-        return _kernel.Window(self._params) if self.compiled else None
+        return _kernel.Window(self._params, step.params()) if self.compiled else None
 
     def fit_window(self, window, context: dict) -> WindowFit:
         """The fit of a streaming window: the kernel's Window (fitted in place) or calibrator._PyWindow."""

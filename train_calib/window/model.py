@@ -22,7 +22,7 @@ import numpy as np
 from .. import physics
 from ..regime_codes import BRAKING, COASTING, CRUISING, REGIME_NAMES, TRACTION, UNKNOWN  # noqa: F401 (re-exported)
 from ..train import TrainSpec
-from .config import WindowConfig
+from .config import DIFFERENCE_SCHEMES, WindowConfig
 
 SAUTHOFF_TEXTBOOK_ABC = (2048.0, 98.4, 6.89)
 """De Martinis eq. 9, the Sauthoff coefficients of their train, read as A [N], B [N/(m/s)], C [N/(m/s)^2].
@@ -182,6 +182,15 @@ class StepModel:
         self.adhesion = config.adhesion_constraint and train.adhesive_mass_fraction > 0.0
         self.adhesive_fraction = train.adhesive_mass_fraction
         self.gamma = train.rotating_mass_factor
+
+    def params(self) -> np.ndarray:
+        """The step model as the C kernel's Window takes it (step_params; the order of _kernel.c's step_model)."""
+        cfg = self.config
+        return np.array([self.mass, self.eta, self.auxiliary_w, self.tunnel_factor, float(self.traction), self.c0,
+                         self.c2, self.v_transition, float(self.adhesion), self.adhesive_fraction, self.gamma,
+                         physics.GRAVITY, float(DIFFERENCE_SCHEMES.index(cfg.difference_scheme)), cfg.min_speed,
+                         cfg.max_gap, cfg.constraint_sigma, cfg.effort_tolerance, cfg.cruise_tolerance,
+                         float(cfg.exclude_braking)])  # fmt: skip
 
     def force(self, v: float, power_consumed: float, power_regenerated: float) -> float:
         """Measured tractive force per effective mass (tractive_force / M), N/kg; NaN below min_speed."""
