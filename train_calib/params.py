@@ -79,11 +79,22 @@ class ParamSpec:
         return " ".join(parts)
 
 
+_SPECS: dict[type, list[ParamSpec]] = {}
+
+
 class ParamSet:
     """Mixin for frozen dataclasses declared with :func:`param`."""
 
     @classmethod
     def specs(cls) -> list[ParamSpec]:
+        """The parameters of the class, in field order (built once per class: type hints are costly to resolve)."""
+        cached = _SPECS.get(cls)
+        if cached is None:
+            cached = _SPECS[cls] = cls._build_specs()
+        return list(cached)
+
+    @classmethod
+    def _build_specs(cls) -> list[ParamSpec]:
         hints = typing.get_type_hints(cls)
         out = []
         for f in dataclasses.fields(cls):  # type: ignore[arg-type]
