@@ -10,12 +10,11 @@ with a residual); components sit at a bound of 0, so a relative test means nothi
 
 from __future__ import annotations
 
-import dataclasses
 import math
 
 import numpy as np
 import pytest
-from window_synthetic import euler_run, fine_run, train_spec
+from window_synthetic import FAST_TRAIN
 
 from train_calib.window import (
     WindowCalibrator,
@@ -29,7 +28,7 @@ from train_calib.window import (
 from train_calib.window.fast import FastFit
 from train_calib.window.model import StepModel
 
-TRAIN = train_spec(adhesive_mass_fraction=0.25, tunnel_factor=0.4, auxiliary_power_kw=150.0)
+TRAIN = FAST_TRAIN
 FLOATS = ("speed_span", "mean_speed", "condition_number")
 EXACT = ("stamp_ns", "run_id", "window_length", "sample_count", "gof_kind", "regime", "ill_posed",
          "dropped_constraints", "reason")  # fmt: skip
@@ -115,21 +114,6 @@ def test_step_model_equals_the_array_functions_bit_for_bit(scheme, constraints):
 # -- the whole window: streaming fast against the reference -----------------------------------------
 
 
-def _runs():
-    tight = train_spec(adhesive_mass_fraction=0.25)
-    return [
-        ("euler exact", TRAIN, euler_run(train=TRAIN, rng=1).series),
-        ("euler noisy", TRAIN, euler_run(train=TRAIN, speed_noise=0.05, power_noise=0.02, rng=2).series),
-        ("fine noisy", tight, fine_run(train=tight, speed_noise=0.05, power_noise=0.02, rng=3).series),
-        ("fine quantised", tight, _quantised(fine_run(train=tight, speed_noise=0.1, power_noise=0.01, rng=4).series)),
-    ]
-
-
-def _quantised(series):
-    """1 km/h speed resolution: long windows of identical speeds (ill posed, rank deficient)."""
-    return dataclasses.replace(series, v=np.round(series.v * 3.6) / 3.6)
-
-
 CONFIGS = {
     "default": WindowConfig(),
     "bounds binding": WindowConfig(
@@ -148,11 +132,6 @@ CONFIGS = {
         regime_source="power",
     ),
 }
-
-
-@pytest.fixture(scope="module")
-def runs():
-    return _runs()
 
 
 @pytest.mark.parametrize("name", list(CONFIGS))

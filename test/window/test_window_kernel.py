@@ -15,7 +15,7 @@ import math
 
 import numpy as np
 import pytest
-from test_window_fast import CONFIGS, TRAIN, _objective_rtol, _runs, _window
+from test_window_fast import CONFIGS, TRAIN, _objective_rtol, _window
 from window_synthetic import train_spec
 
 from train_calib.window import WindowCalibrator, WindowConfig
@@ -60,11 +60,6 @@ def test_the_kernel_is_built_and_used_by_default():
     assert fast_module.KERNEL_AVAILABLE and fit.compiled
     assert not FastFit(TRAIN, WindowConfig(), compiled=False).compiled
     assert not FastFit(TRAIN, WindowConfig(gof="sae")).compiled  # SAE is the reference's alone
-
-
-@pytest.fixture(scope="module")
-def runs():
-    return _runs()
 
 
 @pytest.mark.parametrize("name", list(CONFIGS))
@@ -273,9 +268,9 @@ def test_window_refuses_bad_steps_in_one_line(args, message):
         kernel.Window(np.zeros(9))
 
 
-def test_regime_codes_outside_uint8_count_as_unknown():
+def test_regime_codes_outside_uint8_count_as_unknown(runs):
     """A regime the message type cannot carry is taken from power, in both paths (as UNKNOWN is)."""
-    _, train, series = _runs()[1]
+    _, train, series = runs[1]
     fits = {}
     for compiled in (True, False):
         for regime in (0, 300, -2):

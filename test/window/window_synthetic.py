@@ -170,3 +170,20 @@ def fine_run(train=None, truth=TRUTH, rng=0, speed_noise=0.0, power_noise=0.0, e
     data = _simulate(train, truth, 1.0, 10, electric_brake_max)
     series, v_true = _series(data, train, np.random.default_rng(rng), speed_noise, power_noise)
     return SyntheticRun(series, v_true, data[:, 7].astype(np.uint8), truth)
+
+
+FAST_TRAIN = train_spec(adhesive_mass_fraction=0.25, tunnel_factor=0.4, auxiliary_power_kw=150.0)
+"""The streaming tests' train: the adhesion limit on a quarter of the mass, tunnels, 150 kW auxiliaries."""
+
+
+def streaming_runs() -> list[tuple[str, TrainSpec, MeasurementSeries]]:
+    """(name, train, series) of the runs the streaming tests compare paths on: an exact and a noisy discrete
+    run, a noisy fine run, and a fine run with 1 km/h speeds (long windows of identical speeds: ill posed)."""
+    tight = train_spec(adhesive_mass_fraction=0.25)
+    quantised = fine_run(train=tight, speed_noise=0.1, power_noise=0.01, rng=4).series
+    return [
+        ("euler exact", FAST_TRAIN, euler_run(train=FAST_TRAIN, rng=1).series),
+        ("euler noisy", FAST_TRAIN, euler_run(train=FAST_TRAIN, speed_noise=0.05, power_noise=0.02, rng=2).series),
+        ("fine noisy", tight, fine_run(train=tight, speed_noise=0.05, power_noise=0.02, rng=3).series),
+        ("fine quantised", tight, replace(quantised, v=np.round(quantised.v * 3.6) / 3.6)),
+    ]
