@@ -169,6 +169,8 @@ def test_arrays_the_kernel_cannot_read_take_the_python_path():
     same = FastFit(TRAIN, WindowConfig())(np.ascontiguousarray(strided), upper, upper, v, 1, stamp_ns=0, run_id=0,
                                           previous=None)  # fmt: skip
     _assert_same(same, result, WindowConfig())
+    single = fit(strided.astype(np.float32), upper, upper, v, 1, stamp_ns=0, run_id=0, previous=None)  # float32
+    assert fit.kernel_windows == 0 and fit.reference == 0 and single.sample_count == 40
 
 
 @pytest.mark.parametrize(
@@ -184,6 +186,9 @@ def test_arrays_the_kernel_cannot_read_take_the_python_path():
 def test_bad_arguments_are_refused_in_one_line(args, message):
     with pytest.raises(ValueError, match=message.replace("[", r"\[").replace("]", r"\]")):
         kernel.fit(*args)
+    not_a_buffer = (list(args[0]), *args[1:4], 13, 0)
+    with pytest.raises(TypeError):  # the buffer protocol's own message
+        kernel.fit(*not_a_buffer)
 
 
 def test_a_window_of_other_trains_and_bounds():

@@ -674,7 +674,7 @@ static PyObject *kernel_fit(PyObject *module, PyObject *const *args, Py_ssize_t 
         if (!float64_buffer(args[held], &views[held], held == 0 ? 2 : 1, names[held]))
             break;
     PyObject *result = NULL;
-    Py_ssize_t n = views[0].shape[0];
+    Py_ssize_t n = held == 4 ? views[0].shape[0] : 0;
     int k = -1;
     if (held < 4) {
         /* the error is set */

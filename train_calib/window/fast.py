@@ -148,7 +148,7 @@ class FastFit:
         try:
             out = _kernel.fit(xy, upper, upper_tol, self._params, CODES[self.pattern],
                               -1 if below_zero is None else below_zero)  # fmt: skip
-        except (BufferError, ValueError):  # not C-contiguous float64 arrays: the Python path takes them
+        except (BufferError, TypeError, ValueError):  # not C-contiguous float64 arrays: the Python path takes them
             return None
         return self._kernel_numbers(out)
 
