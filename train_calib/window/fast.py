@@ -32,7 +32,7 @@ from scipy.optimize import nnls
 from ..physics import KMH
 from ..train import TrainSpec
 from .config import WindowConfig
-from .fit import WindowFit, fit_design, ill_posed_reason, make_fit
+from .fit import WindowFit, fit_design, ill_posed_why, make_fit
 from .model import StepModel
 
 MAX_CONDITION = 1e6
@@ -138,10 +138,10 @@ class FastFit:
     def _result(self, numbers, n: int, span: float, regime: int, context: dict) -> WindowFit:
         """The WindowFit of the window's numbers (see _numbers), n rows, speed span (m/s), dominant regime."""
         condition, theta0, theta1, theta2, squares, relative_error, mean_speed, dropped = numbers
-        reason = ill_posed_reason(n, span, condition, self.config, relative_error)
+        why = ill_posed_why(n, span, condition, self.config, relative_error)
         return make_fit(self.train, self.config, n=n, regime=regime, span=span, mean_speed=mean_speed,
                         condition=condition, estimate=(theta0, theta1, theta2), objective=math.sqrt(squares / n),
-                        relative_error=relative_error, dropped=dropped, reason=reason, **context)  # fmt: skip
+                        relative_error=relative_error, dropped=dropped, why=why, **context)  # fmt: skip
 
     def _compiled(self, xy, upper, upper_tol, below_zero) -> list | None:
         """The window's numbers by the C kernel; None where it leaves the window to :meth:`_numbers`."""

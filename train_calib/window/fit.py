@@ -49,9 +49,15 @@ class WindowFit:
     estimate: tuple[float, float, float] = NAN3  # this window's r0, r1, r2, N/kg units
     condition_number: float = math.inf  # of the column-scaled design [1, v, v^2]
     mean_speed: float = math.nan  # m/s
-    reason: str = ""  # why ill posed ("" when well posed)
+    why: tuple = ()  # why ill posed, unformatted (see ``reason``); () when well posed
     relative_error: float = math.inf  # max standard error of r(v) at the reference speeds / train file r(v)
     dropped_constraints: int = 0  # eq. 6/7 rows infeasible on their own (noise at the envelope), left out
+
+    @property
+    def reason(self) -> str:
+        """Why ill posed ("" when well posed): ``why`` formatted when asked (one window per sample is fitted; its
+        text is rarely read, and formatting the numbers cost more than the C kernel's whole fit)."""
+        return self.why[0].format(*self.why[1:]) if self.why else ""
 
     @property
     def constraints_relaxed(self) -> bool:
@@ -117,19 +123,20 @@ def dominant_regime(regimes: np.ndarray) -> int:
     return int(tied[0])  # pragma: no cover
 
 
-def ill_posed_reason(
+def ill_posed_why(
     n: int, speed_span: float, condition: float, config: WindowConfig, relative_error: float = 0.0
-) -> str:
-    """Why the window cannot separate A, B, C ("" if it can)."""
+) -> tuple:
+    """Why the window cannot separate A, B, C, as (format string, its values); () if it can (WindowFit.reason
+    formats it)."""
     if n < config.min_samples:
-        return f"{n} usable steps < min_samples {config.min_samples}"
+        return ("{} usable steps < min_samples {}", n, config.min_samples)
     if speed_span < config.min_speed_span:
-        return f"speed span {speed_span:.2f} m/s < min_speed_span {config.min_speed_span:g} m/s"
+        return ("speed span {:.2f} m/s < min_speed_span {:g} m/s", speed_span, config.min_speed_span)
     if not condition <= config.max_condition:
-        return f"condition number {condition:.3g} > max_condition {config.max_condition:g}"
+        return ("condition number {:.3g} > max_condition {:g}", condition, config.max_condition)
     if not relative_error <= config.max_relative_error:
-        return f"relative standard error {relative_error:.3g} > max_relative_error {config.max_relative_error:g}"
-    return ""
+        return ("relative standard error {:.3g} > max_relative_error {:g}", relative_error, config.max_relative_error)
+    return ()
 
 
 def fit_rows(
@@ -173,8 +180,8 @@ def fit_design(
     """
     n = len(y)
     if n == 0:
-        reason = ill_posed_reason(0, 0.0, math.inf, config)
-        return make_fit(train, config, n=0, regime=regime, reason=reason, stamp_ns=stamp_ns, run_id=run_id,
+        why = ill_posed_why(0, 0.0, math.inf, config)
+        return make_fit(train, config, n=0, regime=regime, why=why, stamp_ns=stamp_ns, run_id=run_id,
                         previous=previous)  # fmt: skip
     span = float(v.max() - v.min())
     condition = scaled_condition_number(x)
@@ -182,11 +189,11 @@ def fit_design(
     speeds = np.asarray(config.reference_speeds_kmh, dtype=float) * KMH
     se = resistance_standard_error(x, y - x @ solution.theta, speeds)
     relative_error = float(np.max(se / np.asarray(train.davis(speeds)))) if len(speeds) else 0.0
-    reason = ill_posed_reason(n, span, condition, config, relative_error)
+    why = ill_posed_why(n, span, condition, config, relative_error)
     estimate = tuple(float(value) for value in solution.theta)
     return make_fit(train, config, n=n, regime=regime, span=span, mean_speed=float(v.mean()), condition=condition,
                     estimate=estimate, objective=solution.objective, relative_error=relative_error,
-                    dropped=solution.dropped_constraints, reason=reason, stamp_ns=stamp_ns, run_id=run_id,
+                    dropped=solution.dropped_constraints, why=why, stamp_ns=stamp_ns, run_id=run_id,
                     previous=previous)  # fmt: skip
 
 
@@ -196,7 +203,7 @@ def make_fit(
     *,
     n: int,
     regime: int,
-    reason: str,
+    why: tuple,
     stamp_ns: int,
     run_id: int,
     previous: WindowFit | None,
@@ -208,12 +215,13 @@ def make_fit(
     relative_error: float = math.inf,
     dropped: int = 0,
 ) -> WindowFit:
-    """The WindowFit of a window's numbers: span, mean_speed in m/s, estimate (r0, r1, r2) and objective in N/kg.
+    """The WindowFit of a window's numbers: span, mean_speed in m/s, estimate (r0, r1, r2) and objective in N/kg;
+    why: ill_posed_why's.
 
     estimate None: no solution (no usable step); the published values are then the previous ones.
     """
     mass = train.effective_mass_kg
-    if estimate is None or reason:  # publish the last well-posed values
+    if estimate is None or why:  # publish the last well-posed values
         r0, r1, r2 = (previous.r0, previous.r1, previous.r2) if previous is not None else NAN3
     else:
         r0, r1, r2 = estimate
@@ -221,8 +229,8 @@ def make_fit(
     head = (int(stamp_ns), int(run_id), float(config.window_length), n, config.gof_kind)
     published = (r0 * mass, r1 * mass, r2 * mass, r0, r1, r2, regime)
     if estimate is None:
-        return WindowFit(*head, math.nan, *published, True, 0.0, reason=reason)
-    return WindowFit(*head, objective * mass, *published, bool(reason), span, estimate, condition, mean_speed, reason,
+        return WindowFit(*head, math.nan, *published, True, 0.0, why=why)
+    return WindowFit(*head, objective * mass, *published, bool(why), span, estimate, condition, mean_speed, why,
                      relative_error, dropped)  # fmt: skip
 
 
