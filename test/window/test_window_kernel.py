@@ -327,3 +327,46 @@ def test_push_needs_the_step_model():
         window.push(0, 0.0, 10.0, True, 1e5, 0.0, 0.0, 0.0, 0.0, -1, 0)
     with pytest.raises(ValueError, match=r"step_params: the 19 values of StepModel\.params\(\)"):
         kernel.Window(FastFit(TRAIN, WindowConfig())._params, np.zeros(18))
+
+
+def _same_value(x, y) -> bool:
+    """Equal, NaN equal to NaN (tuples item by item)."""
+    if isinstance(x, tuple):
+        return len(x) == len(y) and all(_same_value(p, q) for p, q in zip(x, y))
+    return x == y or (isinstance(x, float) and math.isnan(x) and math.isnan(y))
+
+
+def _same_fit(a, b) -> bool:
+    if a is None or b is None:
+        return a is b
+    return all(_same_value(getattr(a, name), getattr(b, name)) for name in a.__dataclass_fields__)
+
+
+@pytest.mark.parametrize("compiled", [True, False])
+def test_a_calibrator_copied_or_pickled_mid_run_goes_on_alike(runs, compiled):
+    """copy.deepcopy and pickle (multiprocessing) carry the window along: the copies' next fits equal the original's."""
+    import copy
+    import pickle
+
+    _, train, series = runs[2]
+    calibrator = WindowCalibrator(train, WindowConfig(), compiled=compiled)
+    for i in range(150):
+        calibrator.update(series[i])
+    copies = [copy.deepcopy(calibrator), pickle.loads(pickle.dumps(calibrator))]
+    assert all(type(c._window) is type(calibrator._window) for c in copies)
+    fitted = 0
+    for i in range(150, len(series)):
+        fit = calibrator.update(series[i])
+        assert all(_same_fit(fit, c.update(series[i])) for c in copies), i
+        fitted += fit is not None
+    assert fitted > 200
+
+
+def test_window_state_is_checked_when_restored():
+    window = kernel.Window(FastFit(TRAIN, WindowConfig())._params)
+    restore, (state,) = window.__reduce__()
+    assert restore(state).steps == 0
+    with pytest.raises(ValueError, match="Window state: a tuple of 20 items"):
+        restore(state[:-1])
+    with pytest.raises(ValueError, match="Window state: inconsistent item sizes"):
+        restore((*state[:2], b"123", *state[3:]))

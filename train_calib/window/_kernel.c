@@ -827,6 +827,7 @@ typedef struct {
     Extremes fastest, slowest;
     /* the step model (model.StepModel) and the last sample pushed */
     StepModel step;
+    double step_params[STEP_PARAMS]; /* as given, for pickling */
     int has_step, has_last;
     Sample last;
 } Window;
@@ -914,40 +915,21 @@ static void window_dealloc(Window *w) {
     Py_TYPE(w)->tp_free((PyObject *)w);
 }
 
-static PyObject *window_new(PyTypeObject *type, PyObject *args, PyObject *kwargs) {
-    PyObject *params_obj, *step_obj = Py_None;
-    static char *keywords[] = {"params", "step_params", NULL};
-    if (!PyArg_ParseTupleAndKeywords(args, kwargs, "O|O:Window", keywords, &params_obj, &step_obj))
+static Window *window_alloc(PyTypeObject *type, const double *params, Py_ssize_t size, const double *step_params,
+                            Py_ssize_t cap) {
+    /* a new, empty Window (params checked by the caller; step_params NULL: no step model) with room for cap entries */
+    Window *w = (Window *)type->tp_alloc(type, 0);
+    if (w == NULL)
         return NULL;
-    StepModel step = {0};
-    if (step_obj != Py_None) {
-        Py_buffer step_view;
-        if (!float64_buffer(step_obj, &step_view, 1, "step_params"))
-            return NULL;
-        int ok = step_view.shape[0] == STEP_PARAMS;
-        if (ok)
-            step_model(step_view.buf, &step);
-        PyBuffer_Release(&step_view);
-        if (!ok) {
-            PyErr_Format(PyExc_ValueError, "step_params: the %d values of StepModel.params()", STEP_PARAMS);
-            return NULL;
-        }
+    w->k = check_params(params, size);
+    if (step_params != NULL) {
+        step_model(step_params, &w->step);
+        memcpy(w->step_params, step_params, sizeof(w->step_params));
+        w->has_step = 1;
     }
-    Py_buffer view;
-    if (!float64_buffer(params_obj, &view, 1, "params"))
-        return NULL;
-    int k = check_params(view.buf, view.shape[0]);
-    Window *w = k < 0 ? NULL : (Window *)type->tp_alloc(type, 0);
-    if (w == NULL) {
-        PyBuffer_Release(&view);
-        return NULL;
-    }
-    w->k = k;
-    w->step = step;
-    w->has_step = step_obj != Py_None;
-    const Py_ssize_t cap = 64;
+    cap = cap > 64 ? cap : 64;
     w->s_cap = w->r_cap = w->fastest.cap = w->slowest.cap = cap;
-    w->params = PyMem_Malloc((size_t)view.shape[0] * sizeof(double));
+    w->params = PyMem_Malloc((size_t)size * sizeof(double));
     w->step_ns = PyMem_Malloc(cap * sizeof(long long));
     w->step_regime = PyMem_Malloc(cap * sizeof(int));
     w->row_ns = PyMem_Malloc(cap * sizeof(long long));
@@ -962,13 +944,41 @@ static PyObject *window_new(PyTypeObject *type, PyObject *args, PyObject *kwargs
     w->slowest.v = PyMem_Malloc(cap * sizeof(double));
     if (!w->params || !w->step_ns || !w->step_regime || !w->row_ns || !w->xy || !w->upper || !w->upper_tol ||
         !w->work || !w->negative || !w->fastest.ns || !w->fastest.v || !w->slowest.ns || !w->slowest.v) {
-        PyBuffer_Release(&view);
         Py_DECREF(w);
-        return PyErr_NoMemory();
+        PyErr_NoMemory();
+        return NULL;
     }
-    memcpy(w->params, view.buf, (size_t)view.shape[0] * sizeof(double));
-    PyBuffer_Release(&view);
+    memcpy(w->params, params, (size_t)size * sizeof(double));
     window_clear(w);
+    return w;
+}
+
+static PyObject *window_new(PyTypeObject *type, PyObject *args, PyObject *kwargs) {
+    PyObject *params_obj, *step_obj = Py_None;
+    static char *keywords[] = {"params", "step_params", NULL};
+    if (!PyArg_ParseTupleAndKeywords(args, kwargs, "O|O:Window", keywords, &params_obj, &step_obj))
+        return NULL;
+    double step_params[STEP_PARAMS];
+    if (step_obj != Py_None) {
+        Py_buffer step_view;
+        if (!float64_buffer(step_obj, &step_view, 1, "step_params"))
+            return NULL;
+        int ok = step_view.shape[0] == STEP_PARAMS;
+        if (ok)
+            memcpy(step_params, step_view.buf, sizeof(step_params));
+        PyBuffer_Release(&step_view);
+        if (!ok) {
+            PyErr_Format(PyExc_ValueError, "step_params: the %d values of StepModel.params()", STEP_PARAMS);
+            return NULL;
+        }
+    }
+    Py_buffer view;
+    if (!float64_buffer(params_obj, &view, 1, "params"))
+        return NULL;
+    Window *w = NULL;
+    if (check_params(view.buf, view.shape[0]) >= 0)
+        w = window_alloc(type, view.buf, view.shape[0], step_obj != Py_None ? step_params : NULL, 64);
+    PyBuffer_Release(&view);
     return (PyObject *)w;
 }
 
@@ -1172,6 +1182,98 @@ static PyObject *window_get_speed_span(Window *w, void *Py_UNUSED(closure)) {
 
 static PyObject *window_get_regime(Window *w, void *Py_UNUSED(closure)) { return PyLong_FromLong(window_regime(w)); }
 
+/* ---- pickling (copy.deepcopy, multiprocessing): the window's live entries as bytes ------------------------------- */
+
+#define BYTES(ptr, count, item) (const char *)(ptr), (Py_ssize_t)(count) * (Py_ssize_t)(item)
+
+static PyObject *restore_function; /* the module's _restore, set at import */
+static PyTypeObject WindowType;
+
+static PyObject *window_reduce(Window *w, PyObject *Py_UNUSED(ignored)) {
+    Py_ssize_t size = 8 + 2 * w->k, steps = w->s_stop - w->s_start, rows = w->r_stop - w->r_start;
+    Py_ssize_t fast = w->fastest.stop - w->fastest.start, slow = w->slowest.stop - w->slowest.start;
+    Py_ssize_t r0 = w->r_start;
+    PyObject *state = Py_BuildValue(
+        "(y#y#y#y#y#y#Ly#y#y#y#y#nny#y#y#y#iy#)", BYTES(w->params, size, sizeof(double)),
+        BYTES(w->step_params, w->has_step ? STEP_PARAMS : 0, sizeof(double)),
+        BYTES(w->step_ns + w->s_start, steps, sizeof(long long)), BYTES(w->step_regime + w->s_start, steps, sizeof(int)),
+        BYTES(w->counts, REGIMES, sizeof(Py_ssize_t)), BYTES(w->newest, REGIMES, sizeof(long long)), w->sequence,
+        BYTES(w->row_ns + r0, rows, sizeof(long long)), BYTES(w->xy + 4 * r0, rows, 4 * sizeof(double)),
+        BYTES(w->upper + r0, rows, sizeof(double)), BYTES(w->upper_tol + r0, rows, sizeof(double)),
+        BYTES(w->negative + r0, rows, 1), w->negatives, w->below_zero,
+        BYTES(w->fastest.ns + w->fastest.start, fast, sizeof(long long)),
+        BYTES(w->fastest.v + w->fastest.start, fast, sizeof(double)),
+        BYTES(w->slowest.ns + w->slowest.start, slow, sizeof(long long)),
+        BYTES(w->slowest.v + w->slowest.start, slow, sizeof(double)), w->has_last, BYTES(&w->last, 1, sizeof(Sample)));
+    if (state == NULL)
+        return NULL;
+    return Py_BuildValue("(O(N))", restore_function, state);
+}
+
+static int take(PyObject *state, int index, void *into, Py_ssize_t item, Py_ssize_t count) {
+    /* copy bytes item state[index] of count entries of item bytes into `into`; -1: wrong length */
+    PyObject *b = PyTuple_GET_ITEM(state, index);
+    if (!PyBytes_Check(b) || PyBytes_GET_SIZE(b) != count * item)
+        return -1;
+    memcpy(into, PyBytes_AS_STRING(b), (size_t)(count * item));
+    return 0;
+}
+
+static Py_ssize_t entries(PyObject *state, int index, Py_ssize_t item) {
+    PyObject *b = PyTuple_GET_ITEM(state, index);
+    return PyBytes_Check(b) && PyBytes_GET_SIZE(b) % item == 0 ? PyBytes_GET_SIZE(b) / item : -1;
+}
+
+static PyObject *kernel_restore(PyObject *module, PyObject *state) {
+    /* the Window of a window_reduce state */
+    (void)module;
+    if (!PyTuple_Check(state) || PyTuple_GET_SIZE(state) != 20) {
+        PyErr_SetString(PyExc_ValueError, "Window state: a tuple of 20 items from Window.__reduce__");
+        return NULL;
+    }
+    Py_ssize_t size = entries(state, 0, sizeof(double)), n_step = entries(state, 1, sizeof(double));
+    Py_ssize_t steps = entries(state, 2, sizeof(long long)), rows = entries(state, 7, sizeof(long long));
+    Py_ssize_t fast = entries(state, 14, sizeof(long long)), slow = entries(state, 16, sizeof(long long));
+    PyObject *params = PyTuple_GET_ITEM(state, 0), *step = PyTuple_GET_ITEM(state, 1);
+    if (size < 0 || (n_step != 0 && n_step != STEP_PARAMS) || steps < 0 || rows < 0 || fast < 0 || slow < 0 ||
+        check_params((const double *)PyBytes_AS_STRING(params), size) < 0) {
+        PyErr_Clear();
+        PyErr_SetString(PyExc_ValueError, "Window state: inconsistent item sizes");
+        return NULL;
+    }
+    Py_ssize_t cap = steps > rows ? steps : rows;
+    Window *w = window_alloc(&WindowType, (const double *)PyBytes_AS_STRING(params), size,
+                             n_step ? (const double *)PyBytes_AS_STRING(step) : NULL, cap + 1);
+    if (w == NULL)
+        return NULL;
+    long long sequence = PyLong_AsLongLong(PyTuple_GET_ITEM(state, 6));
+    Py_ssize_t negatives = PyLong_AsSsize_t(PyTuple_GET_ITEM(state, 12));
+    Py_ssize_t below_zero = PyLong_AsSsize_t(PyTuple_GET_ITEM(state, 13));
+    long has_last = PyLong_AsLong(PyTuple_GET_ITEM(state, 18));
+    if (PyErr_Occurred() || take(state, 2, w->step_ns, sizeof(long long), steps) ||
+        take(state, 3, w->step_regime, sizeof(int), steps) || take(state, 4, w->counts, sizeof(Py_ssize_t), REGIMES) ||
+        take(state, 5, w->newest, sizeof(long long), REGIMES) || take(state, 7, w->row_ns, sizeof(long long), rows) ||
+        take(state, 8, w->xy, 4 * sizeof(double), rows) || take(state, 9, w->upper, sizeof(double), rows) ||
+        take(state, 10, w->upper_tol, sizeof(double), rows) || take(state, 11, w->negative, 1, rows) ||
+        take(state, 14, w->fastest.ns, sizeof(long long), fast) || take(state, 15, w->fastest.v, sizeof(double), fast) ||
+        take(state, 16, w->slowest.ns, sizeof(long long), slow) || take(state, 17, w->slowest.v, sizeof(double), slow) ||
+        take(state, 19, &w->last, sizeof(Sample), 1)) {
+        Py_DECREF(w);
+        if (!PyErr_Occurred())
+            PyErr_SetString(PyExc_ValueError, "Window state: inconsistent item sizes");
+        return NULL;
+    }
+    w->s_stop = steps;
+    w->r_stop = rows;
+    w->fastest.stop = fast;
+    w->slowest.stop = slow;
+    w->sequence = sequence;
+    w->negatives = negatives;
+    w->below_zero = below_zero;
+    w->has_last = has_last != 0;
+    return (PyObject *)w;
+}
+
 static PyMethodDef window_methods[] = {
     {"add", (PyCFunction)(void (*)(void))window_add, METH_FASTCALL,
      "add(end_ns, regime, row, keep): a step ending at end_ns (ns); regime -1 and row None: not a valid step; "
@@ -1186,6 +1288,7 @@ static PyMethodDef window_methods[] = {
      "fit(pattern) -> (status, pattern, condition, theta0, theta1, theta2, squares, relative_error, mean_speed, "
      "dropped, n, speed_span, regime): the module's fit() of the rows (status 1 also with a negative x entry)."},
     {"view", (PyCFunction)window_view, METH_NOARGS, "view() -> (xy, upper, upper_tol) of the rows as float64 bytes."},
+    {"__reduce__", (PyCFunction)window_reduce, METH_NOARGS, "pickling and copy.deepcopy: the live entries as bytes."},
     {NULL, NULL, 0, NULL},
 };
 
@@ -1211,6 +1314,7 @@ static PyTypeObject WindowType = {
 };
 
 static PyMethodDef kernel_methods[] = {
+    {"_restore", (PyCFunction)kernel_restore, METH_O, "_restore(state) -> Window: unpickling (see Window.__reduce__)."},
     {"fit", (PyCFunction)(void (*)(void))kernel_fit, METH_FASTCALL,
      "fit(xy, upper_tol, params, pattern, below_zero) -> (status, pattern, condition, theta0, theta1, theta2, "
      "squares, relative_error, mean_speed, dropped): the RMSE window fit of train_calib.window.fast in C."},
@@ -1228,6 +1332,11 @@ PyMODINIT_FUNC PyInit__kernel(void) {
     PyObject *module = PyModule_Create(&kernel_module);
     if (module == NULL)
         return NULL;
+    restore_function = PyObject_GetAttrString(module, "_restore"); /* held for the module's lifetime */
+    if (restore_function == NULL) {
+        Py_DECREF(module);
+        return NULL;
+    }
     Py_INCREF(&WindowType);
     if (PyModule_AddObject(module, "Window", (PyObject *)&WindowType) < 0) {
         Py_DECREF(&WindowType);
