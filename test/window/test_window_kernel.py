@@ -370,3 +370,10 @@ def test_window_state_is_checked_when_restored():
         restore(state[:-1])
     with pytest.raises(ValueError, match="Window state: inconsistent item sizes"):
         restore((*state[:2], b"123", *state[3:]))
+
+
+def test_the_calibrator_says_how_it_fits():
+    assert WindowCalibrator(TRAIN, WindowConfig()).fit_path == "C kernel"
+    assert WindowCalibrator(TRAIN, WindowConfig(), compiled=False).fit_path == "Python"
+    assert WindowCalibrator(TRAIN, WindowConfig(), fast=False).fit_path == "reference solver"
+    assert WindowCalibrator(TRAIN, WindowConfig(gof="sae")).fit_path == "reference solver"

@@ -92,7 +92,7 @@ class WindowCalibNode(TrainCalibNode):
         self.get_logger().info(
             f"train {self.train.name}: gamma m {self.train.effective_mass_kg / 1000:.1f} t, eta "
             f"{self.train.transmission_efficiency:g}; window {cfg.window_length:g} s, GoF {cfg.gof}, "
-            f"regime from {cfg.regime_source}"
+            f"regime from {cfg.regime_source}; fit: {self.calibrator.fit_path}"
         )
 
     # -- inputs -----------------------------------------------------------------------------------
@@ -163,6 +163,8 @@ class WindowCalibNode(TrainCalibNode):
             ("steps not usable (speed, gap, power)", counts["invalid_step"]),
             ("regime from power (no /train_calib/regime in time)", self._regime_from_power),
             ("held for the regime", len(self._held)),
+            ("window fit", self.calibrator.fit_path),
+            ("windows by the reference solver", self.calibrator.reference_windows),
         ]
         f = self._last
         if f is not None:

@@ -264,6 +264,13 @@ class WindowCalibrator:
         self._last: tuple[int, int] | None = None  # (stamp_ns, run_id) of the last sample taken
 
     @property
+    def fit_path(self) -> str:
+        """How the windows are fitted: "C kernel", "Python" (fast path without the kernel) or "reference solver"."""
+        if not (self.fast and self._fit.enabled):
+            return "reference solver"
+        return "C kernel" if self._fit.compiled else "Python"
+
+    @property
     def reference_windows(self) -> int:
         """Windows fitted by the reference solver (all of them with fast=False; see :mod:`.fast`)."""
         return self._fit.reference
