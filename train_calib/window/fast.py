@@ -97,8 +97,12 @@ class FastFit:
         max(v) - min(v), if the caller keeps them (else computed here).
         """
         context = {"stamp_ns": stamp_ns, "run_id": run_id, "previous": previous}
+        return self._fit_arrays(xy, upper, upper_tol, v, regime, context, nonnegative, below_zero, span, self.compiled)
+
+    def _fit_arrays(self, xy, upper, upper_tol, v, regime, context, nonnegative, below_zero, span, kernel) -> WindowFit:
+        """__call__'s fit; kernel: try the C kernel on the arrays first."""
         use_fast = self.enabled and nonnegative
-        fit = self._fast(xy, upper, upper_tol, v, regime, context, below_zero, span) if use_fast else None
+        fit = self._fast(xy, upper, upper_tol, v, regime, context, below_zero, span, kernel) if use_fast else None
         if fit is None:
             self.reference += 1
             fit = fit_design(xy[:, :3], xy[:, 3], upper, v, regime, self.train, self.config, **context)
@@ -109,7 +113,9 @@ class FastFit:
         return _kernel.Window(self._params, step.params()) if self.compiled else None
 
     def fit_window(self, window, context: dict) -> WindowFit:
-        """The fit of a streaming window: the kernel's Window (fitted in place) or calibrator._PyWindow."""
+        """The fit of a streaming window: the kernel's Window (fitted in place) or calibrator._PyWindow.
+
+        A window the kernel leaves goes to the Python path without the kernel again (same rows, same answer)."""
         if self.compiled:
             *numbers, n, span, regime = window.fit(CODES[self.pattern])
             numbers = self._kernel_numbers(numbers)
@@ -121,12 +127,11 @@ class FastFit:
         else:
             xy, upper, upper_tol, v = window.arrays()
             span, regime = window.speed_span, window.regime
-        return self(xy, upper, upper_tol, v, regime, stamp_ns=context["stamp_ns"], run_id=context["run_id"],
-                    previous=context["previous"], nonnegative=not window.negatives, below_zero=window.below_zero,
-                    span=span)  # fmt: skip
+        return self._fit_arrays(xy, upper, upper_tol, v, regime, context, not window.negatives, window.below_zero,
+                                span, kernel=False)  # fmt: skip
 
-    def _fast(self, xy, upper, upper_tol, v, regime, context, below_zero, span) -> WindowFit | None:
-        numbers = self._compiled(xy, upper, upper_tol, below_zero) if self.compiled else None
+    def _fast(self, xy, upper, upper_tol, v, regime, context, below_zero, span, kernel) -> WindowFit | None:
+        numbers = self._compiled(xy, upper, upper_tol, below_zero) if kernel else None
         if numbers is None:
             numbers = self._numbers(xy, upper, upper_tol, below_zero)
             if numbers is None:
