@@ -472,18 +472,14 @@ static int lsi(const Problem *pr, double condition, const double *xy, const doub
     double c[3] = {a[0][3], a[1][3], a[2][3]}, ls[3];
     for (int i = 0; i < 3; i++)
         ls[i] = v[i][0] * c[0] + v[i][1] * c[1] + v[i][2] * c[2];
-    /* constraint rows g phi <= h: the bounds (phi <= hi, -phi <= -lo), then the rows feasible at the lower bounds */
-    Py_ssize_t rows = 0;
-    for (Py_ssize_t i = 0; i < n; i++) {
-        const double *x = xy + 4 * i;
-        rows += isfinite(upper[i]) && x[0] * params[0] + x[1] * params[1] + x[2] * params[2] <= upper_tol[i];
-    }
-    Py_ssize_t size = 6 + rows;
-    double *m = PyMem_Malloc((size_t)size * 6 * sizeof(double)); /* 4 size for m, size for u, size bytes of flags */
+    /* constraint rows g phi <= h: the bounds (phi <= hi, -phi <= -lo), then the rows feasible at the lower bounds;
+     * room for all 6 + n: 4 doubles per column of m, one for u and one byte of flags */
+    Py_ssize_t room = 6 + n;
+    double *m = PyMem_Malloc((size_t)room * 6 * sizeof(double));
     if (m == NULL)
         return 0;
-    double *u = m + 4 * size;
-    char *flags = (char *)(u + size);
+    double *u = m + 4 * room;
+    char *flags = (char *)(u + room);
     int feasible = 1;
     Py_ssize_t column = 0;
     for (Py_ssize_t i = -6; i < n; i++) {
@@ -521,6 +517,7 @@ static int lsi(const Problem *pr, double condition, const double *xy, const doub
         PyMem_Free(m);
         return 1;
     }
+    Py_ssize_t size = column;
     /* LDP: min ||z|| s.t. (-g R3^-1) z >= g phi_ls - h, by NNLS on [E^T; f^T] against (0, 0, 0, 1) */
     const double target[4] = {0.0, 0.0, 0.0, 1.0};
     int ok = nnls4(m, size, target, u, flags, 50 * (size + 4));
