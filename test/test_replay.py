@@ -15,6 +15,7 @@ from compare import compare, read_outputs
 from synthetic_bag import write_bag
 
 from train_calib import bagio, cli, paths
+from train_calib.estimation.records import EFFORT_SOURCES
 from train_calib.pipeline import run_bag
 from train_calib.summary import window_fit_from_msg
 from train_calib.track import load_track
@@ -90,6 +91,11 @@ def test_replay_writes_output_bag_summary_and_report(bag, tmp_path, capsys):
         assert run["features"]["run_complete"] is True
         assert run["features"]["run_time"] == f.run_time
         assert run["features"]["regime_time_share"] == pytest.approx(list(f.regime_time_share))
+    for run in summary["runs"]:  # the effort sources of the run's estimates, by name (no power in this bag)
+        sources = [e.effort_source for e in reference.estimates if e.run_id == run["run_id"]]
+        assert run["effort_sources"] == {name: sources.count(code) for code, name in enumerate(EFFORT_SOURCES)}
+        assert sum(run["effort_sources"].values()) == run["samples"]
+        assert run["effort_sources"]["computed"] + run["effort_known_samples"] == run["samples"]
     shares = summary["regime_share"]
     assert sum(shares.values()) == pytest.approx(1.0)
     assert summary["dropped"]["gnss_speed_node"] == {

@@ -31,7 +31,7 @@ from .estimation import (
     ResistanceEstimator,
     UKFConfig,
 )
-from .estimation.records import EstimateSample
+from .estimation.records import EFFORT_COMPUTED, EstimateSample
 from .estimation.safeguards import SafeguardConfig
 from .ingest import Ingest, IngestConfig, IngestStats, fix_from_msg, power_from_msg, speed_from_msg
 from .measurement import Measurement, MeasurementSeries
@@ -52,6 +52,7 @@ class RegimeRecord:
     effort: float
     acceleration: float
     v_measured: float = math.nan  # the speed measurement, m/s
+    effort_source: int = EFFORT_COMPUTED  # EFFORT_* of the estimate
 
 
 def classify_estimate(classifier: RegimeClassifier, estimate: Any) -> int:
@@ -229,7 +230,9 @@ class Pipeline:
         for e, regime in pairs:
             m, _ = self._measurements_held.popleft()  # e's measurement (those without an estimate went before)
             out.regimes.append(
-                RegimeRecord(e.stamp_ns, e.run_id, regime, e.s, e.v, e.effort, e.acceleration, e.v_measured)
+                RegimeRecord(
+                    e.stamp_ns, e.run_id, regime, e.s, e.v, e.effort, e.acceleration, e.v_measured, e.effort_source
+                )
             )
             out.features += self.features.update(e, regime)
             self._window(m, regime)

@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from .bagio import iter_bag, stamp_ns
+from .estimation.records import EFFORT_COMPUTED, EFFORT_SOURCES
 from .physics import KMH, davis
 from .regime_codes import REGIME_NAMES, regime_name
 from .train import TrainSpec
@@ -86,7 +87,8 @@ def read_outputs(bag: str | Path) -> Outputs:
             std = np.sqrt(np.maximum(np.diag(cov), 0.0))
             est.append(
                 (stamp_ns(msg.header), msg.run_id, msg.s, msg.v, msg.r0, msg.r1, msg.r2, std[2], std[3], std[4],
-                 msg.effort, msg.acceleration, msg.health, msg.effort_known, msg.nis)
+                 msg.effort, msg.acceleration, msg.health, msg.effort_known, msg.nis,
+                 getattr(msg, "effort_source", EFFORT_COMPUTED))  # bags recorded before effort_source: computed
             )  # fmt: skip
         elif m.topic == REGIME:
             reg.append((stamp_ns(msg.header), msg.regime, msg.v, msg.run_id))
@@ -126,7 +128,7 @@ def read_outputs(bag: str | Path) -> Outputs:
     if est:
         a = list(zip(*est))
         names = ("t", "run_id", "s", "v", "r0", "r1", "r2", "std_r0", "std_r1", "std_r2", "effort", "acceleration",
-                 "health", "effort_known", "nis")  # fmt: skip
+                 "health", "effort_known", "nis", "effort_source")  # fmt: skip
         out.est = {n: np.array(col) for n, col in zip(names, a)}
         out.est["t"] = (np.array(a[0], dtype=np.int64) - t0) * 1e-9
     if reg:
@@ -292,6 +294,10 @@ def summarize(
                 "t_end": float(est["t"][idx[-1]]),
                 "final": _estimate(est, int(idx[-1]), train, truth),
                 "effort_known_samples": int(np.count_nonzero(est["effort_known"][idx])),
+                "effort_sources": {
+                    name: int(np.count_nonzero(est["effort_source"][idx] == code))
+                    for code, name in enumerate(EFFORT_SOURCES)
+                },
             }
             if rid in features:
                 run["features"] = features[rid]

@@ -29,6 +29,7 @@ from train_calib.estimation import (
     fleet_statistics,
 )
 from train_calib.estimation.features import Features
+from train_calib.estimation.records import EFFORT_POWER, EFFORT_POWER_COASTING
 from train_calib.physics import KMH
 
 
@@ -284,3 +285,65 @@ def test_final_brake_after_an_intermediate_stop():
     assert f.final_coast_duration == pytest.approx(200.0, abs=10.0)
     inc, _ = incremental(est, regimes, FeatureConfig())
     assert_same_features(f, inc)
+
+
+def powered_profile(knots, switches, measured=True, seed=0):
+    """profile_series at 1 Hz with the effort sources a run with pantograph power gets (``measured``; else all
+    computed): ``switches`` [(t, kind)] with kind "traction" (traction power from t on), "coast" (no power from t
+    on) or "brake" (electric braking from t on). A step whose ends see the same traction or coasting power is
+    EFFORT_POWER (effort r(v) > 0) or EFFORT_POWER_COASTING (effort 0); the step a switch falls in, and braking,
+    computed (the profile's effort)."""
+    est, t = profile_series(knots, period=1.0, seed=seed)
+    times = np.array([s[0] for s in switches])
+    kinds = np.array([s[1] for s in switches])
+    state = np.where(t < times[0], "none", kinds[np.searchsorted(times, t, side="right") - 1])
+    if measured:
+        same = np.r_[False, state[1:] == state[:-1]]
+        traction = same & (state == "traction")
+        coast = same & (state == "coast")
+        est.effort_source[traction] = EFFORT_POWER
+        est.effort[traction] = 0.015 + 4e-5 * est.v[traction] ** 2
+        est.effort_source[coast] = EFFORT_POWER_COASTING
+        est.effort[coast] = 0.0
+    return est, t
+
+
+def test_measured_power_places_the_changes_of_the_final_coast():
+    """Hold 140 km/h, coast from t = 100.4 s, limit brake from 600.7 s to the stop; the recogniser labels the coast
+    5 s late and the brake 2 s late. With traction power the coast starts in the step (100, 101] where the power
+    ends and ends in (600, 601] where the electric brake begins: the middles, 500.0 s for the true 500.3 s. Without
+    measured power (every effort computed) the changes are located on the speeds as before (the same result as
+    boundary_from_power false)."""
+    knots = [(0, 140), (100.4, 140), (600.7, 50), (628.5, 0), (660, 0)]
+    switches = [(0.0, "traction"), (100.4, "coast"), (600.7, "brake")]
+    est, t = powered_profile(knots, switches)
+    regimes = np.select([t <= 105, t <= 603, t <= 628], [CRUISING, COASTING, BRAKING], UNKNOWN).astype(np.uint8)
+    cfg = FeatureConfig()
+    f = extract_features(est, regimes, cfg)
+    assert f.final_coast_duration == pytest.approx(500.0, abs=1e-9)
+    assert f.final_coast_distance == pytest.approx(np.interp(600.5, t, est.s) - np.interp(100.5, t, est.s), abs=1e-6)
+    assert_same_features(f, incremental(est, regimes, cfg)[0])
+    speeds_only = extract_features(est, regimes, cfg.replace(boundary_from_power=False))
+    assert abs(speeds_only.final_coast_duration - 500.3) > 0.5  # 1 km/h speeds: the break is seconds off here
+    computed, _ = powered_profile(knots, switches, measured=False)
+    assert_same_features(extract_features(computed, regimes, cfg), extract_features(computed, regimes, cfg.replace(
+        boundary_from_power=False)))  # fmt: skip
+
+
+def test_a_coast_is_not_merged_across_measured_traction():
+    """A 5 s traction blip (300.2-305.6 s) inside a coast is short enough to merge as label noise, unless the power
+    shows it: then the final coast starts after it, in the step (305, 306] where the traction power ends."""
+    v_blip = np.interp([300.2], [100.4, 600.7], [140, 50])[0]
+    knots = [(0, 140), (100.4, 140), (300.2, v_blip), (305.6, v_blip + 2), (600.7, 50), (628.5, 0), (660, 0)]
+    switches = [(0.0, "traction"), (100.4, "coast"), (300.2, "traction"), (305.6, "coast"), (600.7, "brake")]
+    regimes_at = [(105, CRUISING), (301, COASTING), (306, TRACTION), (603, COASTING), (628, BRAKING)]
+    cfg = FeatureConfig()
+    for measured in (True, False):
+        est, t = powered_profile(knots, switches, measured)
+        regimes = np.select([t <= b for b, _ in regimes_at], [r for _, r in regimes_at], UNKNOWN).astype(np.uint8)
+        f = extract_features(est, regimes, cfg)
+        if measured:
+            assert f.final_coast_duration == pytest.approx(600.5 - 305.5, abs=1e-9)
+        else:  # merged: the coast from the hold (its start located on the 1 km/h speeds, seconds off)
+            assert f.final_coast_duration > 480.0
+        assert_same_features(f, incremental(est, regimes, cfg)[0])

@@ -12,6 +12,11 @@ from synthetic import add_power
 
 from train_calib.errors import ConfigError
 from train_calib.estimation import (
+    COASTING,
+    EFFORT_COASTING,
+    EFFORT_COMPUTED,
+    EFFORT_POWER,
+    EFFORT_POWER_COASTING,
     HEALTH_DEGRADED,
     HEALTH_OK,
     HEALTH_REPAIRED,
@@ -233,6 +238,31 @@ def test_power_gives_known_traction_effort():
     # the mean effort over a step from power at both ends matches the truth effort of the step
     u_true = 0.5 * (truth.u[:-1] + truth.u[1:])
     assert np.allclose(out.effort[1:][traction[1:]], u_true[traction[1:]], rtol=0.1)
+
+
+def test_effort_source_says_where_the_effort_came_from():
+    """EFFORT_POWER on steps with traction power at both ends, EFFORT_POWER_COASTING on coasting steps without it,
+    computed on the step the traction power ends in (what features locate the coast's start with); without power
+    only computed and speed-confirmed coasting. effort_known is "not computed", per sample and over a run."""
+    train, truth, series = synthetic_run(1, 10.0)
+    s = copy_series(series)
+    add_power(s, truth, train, np.random.default_rng(0), rel_noise=0.0)
+    out = estimate_run(s, train, UKFConfig.converging())
+    src = out.effort_source
+    fast = s.v >= UKFConfig.converging().known_effort_min_speed
+    step = fast[1:] & fast[:-1]
+    pulling = (truth.u[1:] > 0.01) & (truth.u[:-1] > 0.01) & step  # traction and the hold
+    coasting = (truth.regime[1:] == COASTING) & (truth.regime[:-1] == COASTING) & step
+    ends = (truth.u[:-1] > 0.01) & (truth.regime[1:] == COASTING) & step
+    assert pulling.sum() > 5 and coasting.sum() > 5 and ends.sum() >= 1
+    assert np.all(src[1:][pulling] == EFFORT_POWER)
+    assert np.mean(src[1:][coasting] == EFFORT_POWER_COASTING) > 0.9
+    assert np.all(src[1:][ends] == EFFORT_COMPUTED)
+    np.testing.assert_array_equal(out.effort_known, src != EFFORT_COMPUTED)
+    est = ResistanceEstimator(train, UKFConfig.converging())
+    np.testing.assert_array_equal([est.update(m).effort_source for m in s], src)
+    gnss_only = estimate_run(series, train, UKFConfig.converging()).effort_source
+    assert set(np.unique(gnss_only)) == {EFFORT_COMPUTED, EFFORT_COASTING}
 
 
 def test_config_validation_and_presets():

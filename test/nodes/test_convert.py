@@ -15,7 +15,13 @@ from std_msgs.msg import Header
 from train_calib_msgs.msg import DrivingRegime, ResistanceEstimate, TrackMeasurement
 
 from train_calib import bagio
-from train_calib.estimation.records import EstimateSample
+from train_calib.estimation.records import (
+    EFFORT_COASTING,
+    EFFORT_COMPUTED,
+    EFFORT_POWER,
+    EFFORT_POWER_COASTING,
+    EstimateSample,
+)
 from train_calib.measurement import Measurement
 from train_calib.nodes.common import key_value
 from train_calib.nodes.convert import (
@@ -128,11 +134,12 @@ def test_measurement_to_msg_is_the_constructed_message(m):
 def test_estimate_to_msg_is_the_constructed_message():
     cov = np.arange(25, dtype=float).reshape(5, 5) * 1e-3
     e = EstimateSample(7 * NS + 1, 2, 10.0, np.float64(20.0), 0.02, 3e-4, 4e-5, np.asfortranarray(cov), 0.1, -0.2,
-                       0.03, 0.001, 1.2, np.bool_(True), np.int64(1), v_measured=np.float64(20.1))  # fmt: skip
+                       0.03, 0.001, 1.2, np.bool_(True), np.int64(1), v_measured=np.float64(20.1),
+                       effort_source=np.uint8(EFFORT_POWER))  # fmt: skip
     reference = ResistanceEstimate(
         header=_header(e.stamp_ns, "line"), run_id=2, s=10.0, v=20.0, r0=0.02, r1=3e-4, r2=4e-5,
         covariance=cov.reshape(25), effort=0.1, acceleration=-0.2, resistance=0.03, track_force=0.001, nis=1.2,
-        effort_known=True, health=1, v_measured=20.1,
+        effort_known=True, health=1, v_measured=20.1, effort_source=ResistanceEstimate.EFFORT_POWER,
     )  # fmt: skip
     msg = estimate_to_msg(e, "line")
     _same(msg, reference)
@@ -143,29 +150,33 @@ def test_estimate_to_msg_is_the_constructed_message():
 
 
 def test_regime_to_msg_and_back():
-    sample = RegimeInput(3 * NS + 9, 1, 5.0, 6.0, 0.2, -0.1, True, 0.03, 0.0, 6.1)
+    sample = RegimeInput(3 * NS + 9, 1, 5.0, 6.0, 0.2, -0.1, True, 0.03, 0.0, 6.1, EFFORT_POWER_COASTING)
     reference = DrivingRegime(header=_header(sample.stamp_ns, "x"), run_id=1, regime=2, s=5.0, v=6.0, effort=0.2,
-                              acceleration=-0.1, v_measured=6.1)  # fmt: skip
+                              acceleration=-0.1, v_measured=6.1, effort_source=3)  # fmt: skip
     msg = regime_to_msg(sample, np.int64(2), "x")
     _same(msg, reference)
     _same_cdr(regime_to_cdr(sample, np.int64(2), "x"), reference)
     back = regime_input_from_msg(msg)
-    assert back == RegimeInput(sample.stamp_ns, 1, 5.0, 6.0, 0.2, -0.1, v_measured=6.1, frame_id="x")  # no resistance
+    assert back == RegimeInput(
+        sample.stamp_ns, 1, 5.0, 6.0, 0.2, -0.1, v_measured=6.1, effort_source=EFFORT_POWER_COASTING, frame_id="x"
+    )  # no resistance
 
 
-def test_a_message_recorded_without_the_measured_speed_reads_as_nan():
-    class OldRegime:  # a DrivingRegime decoded from a bag recorded before v_measured existed
+def test_a_message_recorded_without_the_measured_speed_and_effort_source_reads_as_nan_and_computed():
+    class OldRegime:  # a DrivingRegime decoded from a bag recorded before v_measured and effort_source existed
         header = _header(5 * NS, "x")
         run_id, regime, s, v, effort, acceleration = 0, 1, 1.0, 2.0, 0.1, 0.0
 
-    assert math.isnan(regime_input_from_msg(OldRegime()).v_measured)
+    old = regime_input_from_msg(OldRegime())
+    assert math.isnan(old.v_measured)
+    assert old.effort_source == EFFORT_COMPUTED
 
 
 def test_regime_input_from_an_estimate():
-    e = EstimateSample(4 * NS, 0, 1.0, 2.0, 0.02, 3e-4, 4e-5, np.eye(5), 0.1, -0.2, 0.03, 0.001, 1.2, False, 0,
-                       v_measured=2.1)  # fmt: skip
+    e = EstimateSample(4 * NS, 0, 1.0, 2.0, 0.02, 3e-4, 4e-5, np.eye(5), 0.1, -0.2, 0.03, 0.001, 1.2, True, 0,
+                       v_measured=2.1, effort_source=EFFORT_COASTING)  # fmt: skip
     got = regime_input_from_msg(estimate_to_msg(e))
-    assert got == RegimeInput(4 * NS, 0, 1.0, 2.0, 0.1, -0.2, False, 0.03, 0.001, 2.1)
+    assert got == RegimeInput(4 * NS, 0, 1.0, 2.0, 0.1, -0.2, True, 0.03, 0.001, 2.1, EFFORT_COASTING)
 
 
 def test_time_and_key_value():

@@ -9,6 +9,11 @@ from .config import FeatureConfig, RegimeConfig, UKFConfig
 from .features import FeatureAccumulator, Features, extract_features, features_per_run
 from .fleet import FeatureStatistics, FleetStatistics, fleet_statistics
 from .records import (
+    EFFORT_COASTING,
+    EFFORT_COMPUTED,
+    EFFORT_POWER,
+    EFFORT_POWER_COASTING,
+    EFFORT_SOURCES,
     HEALTH_DEGRADED,
     HEALTH_OK,
     HEALTH_REPAIRED,
@@ -24,6 +29,11 @@ __all__ = [
     "BRAKING",
     "COASTING",
     "CRUISING",
+    "EFFORT_COASTING",
+    "EFFORT_COMPUTED",
+    "EFFORT_POWER",
+    "EFFORT_POWER_COASTING",
+    "EFFORT_SOURCES",
     "HEALTH_DEGRADED",
     "HEALTH_OK",
     "HEALTH_REPAIRED",

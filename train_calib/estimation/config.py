@@ -400,6 +400,13 @@ class FeatureConfig(ParamSet):
         low=0.0,
         high=600.0,
     )
+    boundary_from_power: bool = param(
+        True,
+        "boundary refinement: where the effort source shows a change (measured traction power ending or starting "
+        "around a coast, electric braking starting after traction), the change lies between the two samples where "
+        "the power changed: the middle of that step (of several steps: the speed break within them); a coast is "
+        "not merged across measured traction",
+    )
     hold_check_window: float = param(
         120.0,
         "final coast: the speeds of the last this-many seconds of a coasting phase are checked for a hold at its end "

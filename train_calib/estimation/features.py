@@ -35,7 +35,14 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .config import FeatureConfig
-from .records import EstimateSample, EstimateSeries
+from .records import (
+    EFFORT_COASTING,
+    EFFORT_COMPUTED,
+    EFFORT_POWER,
+    EFFORT_POWER_COASTING,
+    EstimateSample,
+    EstimateSeries,
+)
 from .regimes import BRAKING, COASTING, CRUISING, TRACTION, UNKNOWN
 
 _NAN = math.nan
@@ -115,21 +122,50 @@ class _Moments:
 
 
 class _Change:
-    """A change of regime into or out of a final-phase regime, located between two samples.
+    """A change of regime (``old`` to ``new``) into or out of a final-phase regime, located between two samples.
 
     ``t_prev``: the last sample of the old regime; ``t_first``: the first of the new one. With
     ``boundary_refinement`` the change is placed at the break of a continuous two-segment line fitted by
     least squares to the speed samples within max(``boundary_window``, 3 dt) on each side, searched over
     [t_first - max(boundary_search, 2 dt), t_first] (the recogniser reports a change up to a few samples
-    late); kind "stop": where the line through the last braking speeds reaches zero. Without refinement, or
-    with too few samples: the middle of the step.
+    late); with ``boundary_from_power``, where the effort sources show the change (``_power_interval``), within
+    the step(s) where the power changed, except at the end of a coast whose speeds broke more than a step before
+    the power did (a brake without electric braking regenerates nothing). Kind "stop": where the line through the
+    last braking speeds reaches zero. Without refinement, or with too few samples: the middle of the step.
     """
 
-    __slots__ = ("_memo", "_time", "closed", "kind", "lo", "pts", "s_stop", "standstill", "t_first", "t_prev", "until")
+    __slots__ = (
+        "_memo",
+        "_time",
+        "closed",
+        "kind",
+        "lo",
+        "new",
+        "old",
+        "power",
+        "pts",
+        "s_stop",
+        "standstill",
+        "t_first",
+        "t_prev",
+        "until",
+    )
 
-    def __init__(self, kind: str, t_prev: float, t_first: float, pts: list, cfg: FeatureConfig) -> None:
+    def __init__(
+        self,
+        kind: str,
+        t_prev: float,
+        t_first: float,
+        pts: list,
+        cfg: FeatureConfig,
+        old: int = UNKNOWN,
+        new: int = UNKNOWN,
+    ) -> None:
         self.kind, self.t_prev, self.t_first = kind, t_prev, t_first
-        self.pts = pts  # (t, s, v_fit, acceleration, v) of the moving samples around the change (features.fit_speed)
+        self.old, self.new = old, new
+        self.power = cfg.boundary_from_power
+        # (t, s, v_fit, acceleration, v, effort source) of the moving samples around the change (features.fit_speed)
+        self.pts = pts
         self.lo = t_first - max(cfg.boundary_search, 2.0 * (t_first - t_prev))
         self.until = t_first + max(cfg.boundary_window, 3.0 * (t_first - t_prev))
         self.closed = kind == "stop"
@@ -138,9 +174,9 @@ class _Change:
         self._time: float | None = None
         self._memo: tuple[int, bool, float] | None = None  # (len(pts), refine, time): pts only grow by appending
 
-    def add(self, t: float, s: float, v_fit: float, a: float, v: float) -> None:
+    def add(self, t: float, s: float, v_fit: float, a: float, v: float, src: int) -> None:
         if t <= self.until:
-            self.pts.append((t, s, v_fit, a, v))
+            self.pts.append((t, s, v_fit, a, v, src))
         else:
             self.closed = True
 
@@ -158,7 +194,17 @@ class _Change:
             elif self.kind == "stop":
                 out = _stop_time(self.pts, self.t_prev, self.t_first, self.standstill)
             else:
-                out = _break_time(self.pts, self.lo, self.t_first)
+                span = _power_interval(self.pts, self.t_first, self.lo, self.old, self.new) if self.power else None
+                speed = _break_time(self.pts, self.lo, self.t_first) if span is None or self.old == COASTING else None
+                if span is None:
+                    out = speed
+                elif self.old == COASTING and speed is not None and speed < 2.0 * span[0] - span[1]:
+                    out = speed  # the speeds broke a step before the power: braking without electric brake
+                elif span[2]:  # one step: the power says no more than "within it"
+                    out = 0.5 * (span[0] + span[1])
+                else:
+                    out = _break_time(self.pts, span[0], span[1])
+                    out = 0.5 * (span[0] + span[1]) if out is None else out
                 out = mid if out is None else out
             self._memo = (len(self.pts), refine, out)
         if self.closed:
@@ -172,6 +218,63 @@ class _Change:
         ts = [p[0] for p in self.pts]
         ss = [p[1] for p in self.pts]
         return float(np.interp(t, ts, ss)) if ts else _NAN
+
+
+_MEASURED_TRACTION, _MEASURED_COAST = EFFORT_POWER, EFFORT_POWER_COASTING
+_UNMEASURED = (EFFORT_COMPUTED, EFFORT_COASTING)
+_POWER_GAP_STEPS = 2
+"""Steps without a measured effort (the step the power changed in, one missing power sample) that a change located
+on the power may span; a longer stretch is not one change (a brake between traction and coasting)."""
+
+
+def _power_interval(pts: list, t_first: float, lo: float, old: int, new: int) -> tuple[float, float, bool] | None:
+    """(a, b, one_step): the steps (a, b] in which the effort sources (pts[i][5], of the step ending at sample i)
+    place the change from ``old`` to ``new`` labelled at t_first, or None where they do not show it.
+
+    A measured effort needs the power at both ends of a step, so the step in which traction power ends or starts,
+    or electric braking starts, has a computed effort (EFFORT_COMPUTED):
+
+    * into coasting (from traction or a hold): the measured-coasting steps that reach t_first (or start after it)
+      follow measured traction and at most ``_POWER_GAP_STEPS`` steps without a measured effort: the change lies in
+      those steps;
+    * out of coasting: the last measured-coasting step before t_first (not before ``lo``) is followed by a step
+      without it: the change lies in that step.
+
+    Braking that follows traction or a hold is not located on the power: the braking phase ends at the stop,
+    located on the speeds, which the power's clock (paired within half a period) would not shift alike.
+    """
+    n = len(pts)
+    f = next((i for i in range(n - 1, -1, -1) if pts[i][0] <= t_first), -1)
+    if f < 1:
+        return None
+    src = [p[5] for p in pts]
+    if new == COASTING:
+        if old not in (TRACTION, CRUISING):
+            return None
+        j = f
+        if src[j] == _MEASURED_COAST:
+            while j > 0 and src[j - 1] == _MEASURED_COAST:
+                j -= 1
+        else:  # labelled before the power shows it: the measured coasting must follow the computed steps
+            while j < n and src[j] in _UNMEASURED:
+                j += 1
+            if j == n or src[j] != _MEASURED_COAST:
+                return None
+        i = j - 1
+        while i >= 0 and src[i] in _UNMEASURED:
+            i -= 1
+        gap = j - 1 - i
+        if i < 0 or src[i] != _MEASURED_TRACTION or not 1 <= gap <= _POWER_GAP_STEPS:
+            return None
+        return pts[i][0], pts[j - 1][0], gap == 1
+    if old != COASTING:
+        return None
+    k = f
+    while k >= 0 and src[k] != _MEASURED_COAST:
+        k -= 1
+    if k < 0 or k == f or pts[k][0] < lo or src[k + 1] not in _UNMEASURED:
+        return None
+    return pts[k][0], pts[k + 1][0], True
 
 
 def _break_time(pts: list, lo: float, hi: float) -> float | None:
@@ -355,8 +458,10 @@ class _FinalPhases:
         "_min_brake",
         "_min_coast",
         "_open",
+        "_power",
         "_span",
         "_standstill",
+        "_traction_t",
         "_u",
         "cfg",
         "final",
@@ -373,12 +478,14 @@ class _FinalPhases:
         self._hold_window = cfg.hold_check_window
         self._min_coast = cfg.final_coast_min_duration - 1e-9
         self._min_brake = cfg.final_brake_min_duration - 1e-9
-        self._hist: deque[tuple[float, ...]] = deque()  # (t, s, v_fit, acceleration, v) of the recent moving samples
+        self._hist: deque[tuple] = deque()  # (t, s, v_fit, acceleration, v, effort source) of the recent moving samples
         self._open: list[_Change] = []  # changes still collecting the samples after them
         self._last: dict[int, _Phase | None] = {COASTING: None, BRAKING: None}
         self.final: dict[int, _Phase | None] = {COASTING: None, BRAKING: None}
         self._coasts: list[_Phase] = []  # the last coasting phases that qualified (the final one last)
         self._u = 0.0  # speed change integrated from the published accelerations (the measured speeds at 10 s)
+        self._traction_t = -math.inf  # end of the last step with measured traction (EFFORT_POWER)
+        self._power = cfg.boundary_from_power
 
     def step(
         self,
@@ -393,10 +500,12 @@ class _FinalPhases:
         accel: float,
         w: float,
         v_fit: float,
+        src: int = EFFORT_COMPUTED,
     ) -> None:
         """One step (t_prev, t] labelled r (UNKNOWN when standing) after one labelled r_prev; accel: its published
         acceleration; w = r + g (effort - acceleration; NaN where the effort is a known zero); v: the filtered
-        speed (moving or not), v_fit: the speed the changes are located on (``fit_speed``)."""
+        speed (moving or not), v_fit: the speed the changes are located on (``fit_speed``); src: the step's effort
+        source (EFFORT_*)."""
         if dt > 0.0 and math.isfinite(accel):
             self._u += accel * dt
         moving = v >= self._standstill
@@ -406,7 +515,7 @@ class _FinalPhases:
             # the train stopped within this step (still labelled braking) or the last: the end of the braking
             brake.end = self._change("stop", t_prev, t, s, brake)
         elif r != r_prev and (r in _FINAL or r_prev in _FINAL):
-            ch = self._change("change", t_prev, t, s, None)
+            ch = self._change("change", t_prev, t, s, None, r_prev, r)
             ph = last.get(r_prev)
             if ph is not None and ph.end is None:
                 ph.end = ch
@@ -442,18 +551,23 @@ class _FinalPhases:
                 if r == COASTING:
                     self._coasts = [*self._coasts[-2:], ph]
         hist = self._hist
+        if src == _MEASURED_TRACTION and self._power:
+            self._traction_t = t
         if moving:
-            hist.append((t, s, v_fit, accel, v))
+            hist.append((t, s, v_fit, accel, v, src))
             if self._open:
                 for ch in self._open:
-                    ch.add(t, s, v_fit, accel, v)
+                    ch.add(t, s, v_fit, accel, v, src)
                 self._open = [ch for ch in self._open if not ch.closed]
         t_old = t - self._span - 5.0 * max(dt, 0.0)
         while hist and hist[0][0] < t_old:
             hist.popleft()
 
-    def _change(self, kind: str, t_prev: float, t: float, s: float, brake: _Phase | None) -> _Change:
-        """A change between the samples at t_prev and t; it ends the collection of the open ones."""
+    def _change(
+        self, kind: str, t_prev: float, t: float, s: float, brake: _Phase | None, old: int = UNKNOWN, new: int = UNKNOWN
+    ) -> _Change:
+        """A change (from regime old to new) between the samples at t_prev and t; it ends the collection of the open
+        ones."""
         cfg = self.cfg
         span = max(cfg.boundary_search, 2.0 * (t - t_prev)) + max(cfg.boundary_window, 3.0 * (t - t_prev))
         if brake is not None:  # stop: the speeds of the braking since its start
@@ -461,7 +575,7 @@ class _FinalPhases:
             pts = [p for p in self._hist if p[0] >= since]
         else:
             pts = [p for p in self._hist if p[0] >= t - span]
-        ch = _Change(kind, t_prev, t, pts, cfg)
+        ch = _Change(kind, t_prev, t, pts, cfg, old, new)
         if kind == "stop":
             ch.s_stop = s
         for other in self._open:  # the phase after them ended: the line after a change fits that phase only
@@ -470,14 +584,17 @@ class _FinalPhases:
         return ch
 
     def _braked_since(self, ph: _Phase | None, r: int) -> bool:
-        """A coasting phase is not continued across braking (the coast before a brake is a different one)."""
+        """A coasting phase is not continued across braking (the coast before a brake is a different one), nor across
+        measured traction (no label noise: the power shows it; ``boundary_from_power``)."""
+        if r != COASTING or ph is None:
+            return False
         brake = self._last[BRAKING]
-        return r == COASTING and ph is not None and brake is not None and brake.last_t > ph.last_t
+        return (brake is not None and brake.last_t > ph.last_t) or self._traction_t > ph.last_t
 
     def first(self, t: float, s: float, v: float, v_fit: float) -> None:
         """The first sample of the run (v filtered, v_fit as in ``step``)."""
         if v >= self.cfg.standstill_speed:
-            self._hist.append((t, s, v_fit, 0.0, v))
+            self._hist.append((t, s, v_fit, 0.0, v, EFFORT_COMPUTED))
 
     def result(self, regime: int) -> tuple[float, float]:
         """(duration s, distance m) of the final COASTING or BRAKING phase so far; NaN when there is none.
@@ -565,12 +682,23 @@ class FeatureAccumulator:
             float(sample.acceleration),
             int(regime),
             fit_speed(v, float(getattr(sample, "v_measured", _NAN))),
+            int(getattr(sample, "effort_source", EFFORT_COMPUTED)),
         )
 
     def _add(
-        self, stamp: int, run_id: int, s: float, v: float, effort: float, accel: float, regime: int, v_fit: float
+        self,
+        stamp: int,
+        run_id: int,
+        s: float,
+        v: float,
+        effort: float,
+        accel: float,
+        regime: int,
+        v_fit: float,
+        src: int = EFFORT_COMPUTED,
     ) -> bool:
-        """v: filtered speed; v_fit: the speed the phase changes are located on (fit_speed), m/s."""
+        """v: filtered speed; v_fit: the speed the phase changes are located on (fit_speed), m/s; src: the effort
+        source (EFFORT_*)."""
         cfg = self.config
         t = stamp * 1e-9
         if run_id != self._run_id:
@@ -614,7 +742,7 @@ class FeatureAccumulator:
         elif self._regime == CRUISING:
             self._close_cruise(t_prev)
         w = effort - accel if effort != 0.0 else _NAN
-        self._final.step(t_prev, s_prev, self._regime, t, s, v, regime, dt, accel, w, v_fit)
+        self._final.step(t_prev, s_prev, self._regime, t, s, v, regime, dt, accel, w, v_fit, src)
         changed = regime != self._regime
         self._stamp, self._t, self._s, self._v, self._regime = stamp, t, s, v, regime
         return changed
@@ -759,11 +887,14 @@ def extract_features(
     fl = fit_speeds(v, estimates.v_measured).tolist()
     dtl = dt.tolist()
     al = estimates.acceleration.tolist()
+    srcl = estimates.effort_source.tolist()
     wl = np.where(estimates.effort != 0.0, estimates.effort - estimates.acceleration, np.nan).tolist()
     final.first(tl[0], sl[0], vl[0], fl[0])
     r_prev = int(first)
     for k in range(1, n):
-        final.step(tl[k - 1], sl[k - 1], r_prev, tl[k], sl[k], vl[k], rl[k - 1], dtl[k - 1], al[k], wl[k], fl[k])
+        final.step(
+            tl[k - 1], sl[k - 1], r_prev, tl[k], sl[k], vl[k], rl[k - 1], dtl[k - 1], al[k], wl[k], fl[k], srcl[k]
+        )
         r_prev = rl[k - 1]
     f.final_coast_duration, f.final_coast_distance = final.result(COASTING)
     f.final_brake_duration, f.final_brake_distance = final.result(BRAKING)

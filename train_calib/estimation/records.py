@@ -18,6 +18,17 @@ HEALTH_DEGRADED = 2
 HEALTH_RESET = 3
 """State or covariance invalid, or a gap longer than max_dt: the filter was re-initialised."""
 
+EFFORT_COMPUTED = 0
+"""The effort of the step is computed from the speed change and the current resistance (Cunillera eq. 4)."""
+EFFORT_COASTING = 1
+"""u = 0 taken as known: the speeds confirm coasting (``effort_mode: exploit_known``)."""
+EFFORT_POWER = 2
+"""u from the measured traction power at both ends of the step (De Martinis & Corman 2019, eq. 3)."""
+EFFORT_POWER_COASTING = 3
+"""u = 0 taken as known: the power at both ends of the step shows neither traction nor electric braking."""
+EFFORT_SOURCES = ("computed", "coasting", "power", "power_coasting")
+"""Names of the effort sources by code (ResistanceEstimate.EFFORT_*)."""
+
 STATE_NAMES = ("s", "v", "r0", "r1", "r2")
 
 
@@ -43,6 +54,7 @@ class EstimateSample:
     dt: float = 0.0  # s since the previous sample of the run (0 for the first)
     input_effort: float = 0.0  # u fed to the process model (the paper's two-point effort when not known), N/kg
     v_measured: float = math.nan  # the speed measurement of this update, m/s (features locate phase changes on it)
+    effort_source: int = EFFORT_COMPUTED  # EFFORT_*: how the step's effort was obtained (effort_known: not computed)
 
     @property
     def davis(self) -> Davis:
@@ -76,17 +88,18 @@ class EstimateSeries:
     input_effort: np.ndarray
     decoupled: np.ndarray  # bool: the step's process used the mean resistance (decouple_unknown_effort)
     v_measured: np.ndarray  # the speed measurements, m/s (NaN where unknown)
+    effort_source: np.ndarray  # uint8 EFFORT_* per sample
 
     @classmethod
     def empty(cls, n: int) -> EstimateSeries:
-        ints = {"stamp_ns", "run_id", "health"}
+        ints = {"stamp_ns", "run_id", "health", "effort_source"}
         bools = {"effort_known", "decoupled"}
         data = {}
         for f in fields(cls):
             if f.name == "covariance":
                 data[f.name] = np.zeros((n, 5, 5))
             elif f.name in ints:
-                data[f.name] = np.zeros(n, dtype=np.int64 if f.name != "health" else np.uint8)
+                data[f.name] = np.zeros(n, dtype=np.uint8 if f.name in ("health", "effort_source") else np.int64)
             elif f.name in bools:
                 data[f.name] = np.zeros(n, dtype=bool)
             elif f.name == "v_measured":

@@ -57,6 +57,7 @@ def estimate_run(
         out.s[:], out.v[:], out.r0[:], out.r1[:], out.r2[:] = table[:, 0:5].T
         out.effort[:], out.acceleration[:], out.resistance[:], out.track_force[:], out.nis[:] = table[:, 5:10].T
         out.effort_known[:] = table[:, 10] != 0.0
+        out.effort_source[:] = table[:, 10]
         out.health[:] = table[:, 11]
         out.dt[:], out.input_effort[:] = table[:, 12], table[:, 13]
         out.decoupled[:] = table[:, 14] != 0.0

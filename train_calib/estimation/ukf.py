@@ -49,7 +49,17 @@ from ..train import Davis, TrainSpec
 from .config import UKFConfig
 from .covariance import cholesky, project_nonnegative, repair, unpack
 from .effort import PowerEffort, SpeedSlope
-from .records import HEALTH_DEGRADED, HEALTH_OK, HEALTH_REPAIRED, HEALTH_RESET, EstimateSample
+from .records import (
+    EFFORT_COASTING,
+    EFFORT_COMPUTED,
+    EFFORT_POWER,
+    EFFORT_POWER_COASTING,
+    HEALTH_DEGRADED,
+    HEALTH_OK,
+    HEALTH_REPAIRED,
+    HEALTH_RESET,
+    EstimateSample,
+)
 from .safeguards import SafeguardConfig
 
 _NONNEG = (1, 2, 3, 4)  # v, r0, r1, r2
@@ -76,6 +86,12 @@ def _nis_limits(q: float, window: int) -> tuple[float, ...]:
     return (math.inf, *(float(x) for x in chi2.ppf(q, range(1, 2 * window + 1))))
 
 
+_SOURCE = {
+    "known_effort_coast": EFFORT_COASTING,
+    "known_effort_power": EFFORT_POWER,
+    "known_effort_power_coast": EFFORT_POWER_COASTING,
+}
+"""Effort source (EstimateSample.effort_source) of a known-effort step, by its counter."""
 _SEVERITY = {HEALTH_OK: 0, HEALTH_DEGRADED: 1, HEALTH_REPAIRED: 2, HEALTH_RESET: 3}
 
 
@@ -245,7 +261,7 @@ class ResistanceEstimator:
             float(m.power_consumed),
             float(m.power_regenerated),
         )
-        s, v, r0, r1, r2, effort, accel, resistance, g, nis, known, health, dt, u_in, _ = out
+        s, v, r0, r1, r2, effort, accel, resistance, g, nis, source, health, dt, u_in, _ = out
         return EstimateSample(
             stamp_ns=int(m.stamp_ns),
             run_id=int(m.run_id),
@@ -260,11 +276,12 @@ class ResistanceEstimator:
             resistance=resistance,
             track_force=g,
             nis=nis,
-            effort_known=known,
+            effort_known=source != EFFORT_COMPUTED,
             health=health,
             dt=dt,
             input_effort=u_in,
             v_measured=float(m.v),
+            effort_source=source,
         )
 
     # -- internals ------------------------------------------------------------------------------
@@ -482,7 +499,7 @@ class ResistanceEstimator:
                 provisional = True
             if known_u is not None:
                 if self._known_predict(h, dt, known_u, g_prev, zv, rv, split):
-                    known = True
+                    known = _SOURCE[kind]
                     u = effort = known_u
                     if not split:
                         counters[kind] += 1

@@ -26,7 +26,7 @@ from std_msgs.msg import Header
 from train_calib_msgs.msg import DrivingFeatures, DrivingRegime, ResistanceEstimate, TrackMeasurement
 
 from ..estimation.features import Features
-from ..estimation.records import EstimateSample
+from ..estimation.records import EFFORT_COMPUTED, EstimateSample
 from ..measurement import Measurement
 from . import cdr
 from .slots import bare, check_layout
@@ -163,6 +163,7 @@ def _estimate_values(e: EstimateSample) -> tuple:
         bool(e.effort_known),
         int(e.health),
         float(e.v_measured),
+        int(e.effort_source),
     )
 
 
@@ -196,6 +197,7 @@ class RegimeInput:
     resistance: float | None = None  # r(v) at the filtered speed, N/kg
     track_force: float | None = None  # g(s), N/kg
     v_measured: float = math.nan  # the speed measurement, m/s (NaN: a message recorded without it)
+    effort_source: int = EFFORT_COMPUTED  # EFFORT_* (a message recorded without it: computed)
     frame_id: str = ""
 
 
@@ -203,6 +205,7 @@ def regime_input_from_msg(msg: Any) -> RegimeInput:
     """From a ResistanceEstimate (with effort_known, resistance, track_force) or a DrivingRegime (rclpy or rosbags)."""
     t_ns = stamp_to_ns(msg.header.stamp)
     v_measured = float(getattr(msg, "v_measured", math.nan))  # bags recorded before the field: NaN
+    source = int(getattr(msg, "effort_source", EFFORT_COMPUTED))  # bags recorded before the field: computed
     if hasattr(msg, "resistance"):  # a ResistanceEstimate
         return RegimeInput(
             t_ns,
@@ -215,11 +218,12 @@ def regime_input_from_msg(msg: Any) -> RegimeInput:
             float(msg.resistance),
             float(msg.track_force),
             v_measured,
+            source,
             msg.header.frame_id,
         )
     return RegimeInput(
         t_ns, int(msg.run_id), float(msg.s), float(msg.v), float(msg.effort), float(msg.acceleration),
-        v_measured=v_measured, frame_id=msg.header.frame_id,
+        v_measured=v_measured, effort_source=source, frame_id=msg.header.frame_id,
     )  # fmt: skip
 
 
@@ -236,6 +240,7 @@ def _regime_values(sample: RegimeInput | EstimateSample, regime: int) -> tuple:
         float(sample.effort),
         float(sample.acceleration),
         float(sample.v_measured),
+        int(sample.effort_source),
     )
 
 
