@@ -347,3 +347,37 @@ def test_a_coast_is_not_merged_across_measured_traction():
         else:  # merged: the coast from the hold (its start located on the 1 km/h speeds, seconds off)
             assert f.final_coast_duration > 480.0
         assert_same_features(f, incremental(est, regimes, cfg)[0])
+
+
+def test_a_brake_rate_ignores_the_samples_labelled_braking_after_the_brake():
+    """Brake at 0.3 m/s^2 from 100 to 62 km/h, then a 62 km/h hold. The published acceleration is a causal 10 s
+    slope and the labels keep braking until it rises above -0.03 m/s^2, 7-8 s after the brake (as the HMM at 1 Hz on
+    the proof runs): those samples (their slope mixes in the hold) are not brake rates. The rate of the 60-80 km/h
+    step is then the brake's; with boundary_refinement off (the end at the label change) it was pulled down."""
+    t = np.arange(0.0, 200.0)
+    t_end = 50.2 + 38 / 3.6 / 0.3
+    v_kmh = np.interp(t, [0, 50.2, t_end, 200], [100, 100, 62, 62])
+    est = EstimateSeries.empty(t.size)
+    est.stamp_ns[:] = np.round(t * 1e9).astype(np.int64)
+    est.v[:] = est.v_measured[:] = v_kmh * KMH
+    est.s[:] = np.concatenate(([0.0], np.cumsum(0.5 * (est.v[1:] + est.v[:-1]))))
+    est.dt[1:] = 1.0
+    est.acceleration[1:] = [np.polyfit(t[max(k - 10, 0) : k + 1], est.v[max(k - 10, 0) : k + 1], 1)[0] for k in
+                            range(1, t.size)]  # fmt: skip
+    est.effort[:] = est.acceleration + 0.03
+    braking = np.flatnonzero(est.acceleration < -0.03)
+    regimes = np.full(t.size, CRUISING, dtype=np.uint8)
+    regimes[braking[0] : braking[-1] + 1] = BRAKING
+    assert t[braking[-1]] - t_end >= 7.0
+    cfg = FeatureConfig()
+    f = extract_features(est, regimes, cfg)
+    assert f.brake_rate_count[2] >= 5 and f.brake_rate_mean[2] == pytest.approx(0.3, abs=1e-6)
+    assert_same_features(f, incremental(est, regimes, cfg)[0])
+    acc = FeatureAccumulator(cfg)  # while braking, in the labels' lag and after: the run so far, either path
+    for k in range(t.size):
+        acc.update(est.sample(k), int(regimes[k]))
+        if k in (65, 80, 88, 92, 95, 100, 120):
+            prefix = est.select(np.arange(k + 1))
+            assert_same_features(acc.snapshot(), extract_features(prefix, regimes[: k + 1], cfg, run_complete=False))
+    plain = extract_features(est, regimes, cfg.replace(boundary_refinement=False))
+    assert plain.brake_rate_count[2] > f.brake_rate_count[2] and plain.brake_rate_mean[2] < 0.25

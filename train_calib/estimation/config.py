@@ -382,7 +382,9 @@ class FeatureConfig(ParamSet):
         True,
         "final coast/brake: locate the start and end of the phase between samples, at the break of a continuous "
         "two-segment line fitted to the speed around the labelled change, and the end of the final brake where the "
-        "speed of its last samples extrapolates to zero (false: at the middle of the step where the label changes)",
+        "speed of its last samples extrapolates to zero; the brake rates count a braking run's samples up to its "
+        "end located so (the labels end a brake late) (false: changes at the middle of the step where the label "
+        "changes)",
     )
     boundary_window: float = param(
         10.0,

@@ -114,6 +114,11 @@ class _Moments:
         self.mean += d / self.n
         self.m2 += d * (x - self.mean)
 
+    def copy(self) -> _Moments:
+        out = _Moments()
+        out.n, out.mean, out.m2 = self.n, self.mean, self.m2
+        return out
+
     def result(self) -> tuple[float, float, int]:
         if self.n == 0:
             return _NAN, _NAN, 0
@@ -465,6 +470,7 @@ class _FinalPhases:
         "_u",
         "cfg",
         "final",
+        "latest",
         "refine",
     )
 
@@ -485,6 +491,7 @@ class _FinalPhases:
         self._coasts: list[_Phase] = []  # the last coasting phases that qualified (the final one last)
         self._u = 0.0  # speed change integrated from the published accelerations (the measured speeds at 10 s)
         self._traction_t = -math.inf  # end of the last step with measured traction (EFFORT_POWER)
+        self.latest: _Change | None = None  # the last change located (the end of a braking run for the brake rates)
         self._power = cfg.boundary_from_power
 
     def step(
@@ -576,6 +583,7 @@ class _FinalPhases:
         else:
             pts = [p for p in self._hist if p[0] >= t - span]
         ch = _Change(kind, t_prev, t, pts, cfg, old, new)
+        self.latest = ch
         if kind == "stop":
             ch.s_stop = s
         for other in self._open:  # the phase after them ended: the line after a change fits that phase only
@@ -615,6 +623,66 @@ class _FinalPhases:
                 ts = [p[0] for p in ph.tail]
                 return t_hold - t0, float(np.interp(t_hold, ts, [p[1] for p in ph.tail])) - s0
         return _NAN, _NAN
+
+
+class _BrakeRates:
+    """Brake rate samples per speed step; the samples of a braking run count up to its located end.
+
+    The published acceleration is a window average (``accel_window``) and the recogniser, whose effort follows
+    it, labels the end of a brake late: at 1 Hz a brake into a hold stayed labelled braking for 8 s after it, and
+    those samples mixed the hold into the rate (0.28 instead of 0.47 m/s^2). So a run's samples wait until the
+    change out of braking is located (``_Change``, boundary refinement) and those after it are dropped; a run that
+    ends at the stop keeps them all. ``result`` counts the waiting ones as they stand (the open run: all).
+    """
+
+    __slots__ = ("closing", "done", "open", "refine")
+
+    def __init__(self, steps: int, refine: bool) -> None:
+        self.done = [_Moments() for _ in range(steps)]
+        self.open: list[tuple[float, int, float]] = []  # (t, step, rate) of the current braking run
+        self.closing: list[tuple[_Change, list[tuple[float, int, float]]]] = []  # ended runs, end still moving
+        self.refine = refine
+
+    def add(self, t: float, step: int, rate: float) -> None:
+        self.open.append((t, step, rate))
+
+    def end_run(self, end: _Change | None) -> None:
+        """The braking run ended with the change ``end`` (the last one located)."""
+        if self.open:
+            if end is None or end.kind == "stop":
+                self._commit(self.open, math.inf)
+            else:
+                self.closing.append((end, self.open))
+            self.open = []
+        self.settle()
+
+    def settle(self) -> None:
+        """Commit the ended runs whose end no longer moves."""
+        if self.closing and any(end.closed for end, _ in self.closing):
+            keep = []
+            for end, items in self.closing:
+                if end.closed:
+                    self._commit(items, end.time(self.refine))
+                else:
+                    keep.append((end, items))
+            self.closing = keep
+
+    def _commit(self, items: list[tuple[float, int, float]], t_end: float) -> None:
+        for t, step, rate in items:
+            if t <= t_end:
+                self.done[step].add(rate)
+
+    def result(self) -> list[tuple[float, float, int]]:
+        """(mean, sample std, count) per step, the waiting samples included as they stand."""
+        if not self.open and not self.closing:
+            return [m.result() for m in self.done]
+        moments = [m.copy() for m in self.done]
+        waiting = [(items, end.time(self.refine)) for end, items in self.closing] + [(self.open, math.inf)]
+        for items, t_end in waiting:
+            for t, step, rate in items:
+                if t <= t_end:
+                    moments[step].add(rate)
+        return [m.result() for m in moments]
 
 
 def _fit(n: int, sv: float, su: float, svv: float, svu: float) -> tuple[float, float, float]:
@@ -662,7 +730,7 @@ class FeatureAccumulator:
         self._shares = [0.0] * 5
         self._fit = [0, 0.0, 0.0, 0.0, 0.0]
         self._power = _Moments()
-        self._brake = [_Moments() for _ in self._edges_list]
+        self._brake = _BrakeRates(len(self._edges_list), self.config.boundary_refinement)
         self._brake_first_t = 0.0
         self._cruise_done: list[tuple[float, np.ndarray, np.ndarray]] = []  # (median, v, dt) of listed phases
         self._cruise_v: list[float] = []
@@ -732,7 +800,7 @@ class FeatureAccumulator:
                 if t - self._brake_first_t >= 0.98 * w - 1e-6:
                     i = self._step_index(v)
                     if i >= 0 and i == self._step_index(v - accel * max(w, dt)):
-                        self._brake[i].add(-accel)
+                        self._brake.add(t, i, -accel)
         # cruising phases (by sample)
         if regime == CRUISING:
             if self._regime != CRUISING:
@@ -743,6 +811,10 @@ class FeatureAccumulator:
             self._close_cruise(t_prev)
         w = effort - accel if effort != 0.0 else _NAN
         self._final.step(t_prev, s_prev, self._regime, t, s, v, regime, dt, accel, w, v_fit, src)
+        if self._regime == BRAKING and regime != BRAKING:
+            self._brake.end_run(self._final.latest)
+        else:
+            self._brake.settle()
         changed = regime != self._regime
         self._stamp, self._t, self._s, self._v, self._regime = stamp, t, s, v, regime
         return changed
@@ -772,7 +844,7 @@ class FeatureAccumulator:
         f.max_tractive_power, f.max_tractive_power_std, f.max_tractive_power_count = self._power.result()
         f.brake_step_low = self._edges.copy()
         f.brake_step_high = np.append(self._edges[1:], np.inf)
-        res = [m.result() for m in self._brake]
+        res = self._brake.result()
         f.brake_rate_mean = np.array([r[0] for r in res])
         f.brake_rate_std = np.array([r[1] for r in res])
         f.brake_rate_count = np.array([r[2] for r in res], dtype=np.uint32)
@@ -845,33 +917,12 @@ def extract_features(
     if power.size:
         f.max_tractive_power = float(power.mean())
         f.max_tractive_power_std = float(power.std(ddof=1)) if power.size > 1 else _NAN
-    # brake rates
-    edges = np.asarray(cfg.brake_step_edges, dtype=float)
-    f.brake_step_low = edges.copy()
-    f.brake_step_high = np.append(edges[1:], np.inf)
-    br = pos & (reg == BRAKING)
-    first_t = np.full(n - 1, np.inf)
-    phases = _runs(reg)
-    for a, b in phases:
-        if reg[a] == BRAKING:
-            first_t[a:b] = t[a + 1]
-    w = cfg.brake_window
-    br &= t[1:] - first_t >= 0.98 * w - 1e-6
-    idx = np.searchsorted(edges, v[1:], side="right") - 1
-    br &= idx == np.searchsorted(edges, v[1:] - accel * np.maximum(w, dt), side="right") - 1
-    means, stds, counts = [], [], []
-    for i in range(edges.size):
-        d = -accel[br & (idx == i)]
-        counts.append(d.size)
-        means.append(float(d.mean()) if d.size else _NAN)
-        stds.append(float(d.std(ddof=1)) if d.size > 1 else _NAN)
-    f.brake_rate_mean, f.brake_rate_std = np.array(means), np.array(stds)
-    f.brake_rate_count = np.array(counts, dtype=np.uint32)
     # time shares
     total = float(dt[pos].sum())
     shares = np.bincount(reg[pos], weights=dt[pos], minlength=5)
     f.regime_time_share = shares / total if total > 0.0 else np.zeros(5)
     # phases (loop over phases, not samples)
+    phases = _runs(reg)
     cruise = []
     t_step0, t_step1 = t[:-1], t[1:]
     for a, b in phases:
@@ -891,11 +942,38 @@ def extract_features(
     wl = np.where(estimates.effort != 0.0, estimates.effort - estimates.acceleration, np.nan).tolist()
     final.first(tl[0], sl[0], vl[0], fl[0])
     r_prev = int(first)
+    brake_ends: dict[int, _Change | None] = {}  # step index -> the change that ended the braking run before it
     for k in range(1, n):
         final.step(
             tl[k - 1], sl[k - 1], r_prev, tl[k], sl[k], vl[k], rl[k - 1], dtl[k - 1], al[k], wl[k], fl[k], srcl[k]
         )
+        if r_prev == BRAKING and rl[k - 1] != BRAKING:
+            brake_ends[k - 1] = final.latest
         r_prev = rl[k - 1]
+    # brake rates
+    edges = np.asarray(cfg.brake_step_edges, dtype=float)
+    f.brake_step_low = edges.copy()
+    f.brake_step_high = np.append(edges[1:], np.inf)
+    br = pos & (reg == BRAKING)
+    first_t = np.full(n - 1, np.inf)
+    for a, b in phases:
+        if reg[a] == BRAKING:
+            first_t[a:b] = t[a + 1]
+            end = brake_ends.get(b)  # samples after the located end of the run mix in what followed (_BrakeRates)
+            if end is not None and end.kind != "stop":
+                br[a:b] &= t[a + 1 : b + 1] <= end.time(cfg.boundary_refinement)
+    w = cfg.brake_window
+    br &= t[1:] - first_t >= 0.98 * w - 1e-6
+    idx = np.searchsorted(edges, v[1:], side="right") - 1
+    br &= idx == np.searchsorted(edges, v[1:] - accel * np.maximum(w, dt), side="right") - 1
+    means, stds, counts = [], [], []
+    for i in range(edges.size):
+        d = -accel[br & (idx == i)]
+        counts.append(d.size)
+        means.append(float(d.mean()) if d.size else _NAN)
+        stds.append(float(d.std(ddof=1)) if d.size > 1 else _NAN)
+    f.brake_rate_mean, f.brake_rate_std = np.array(means), np.array(stds)
+    f.brake_rate_count = np.array(counts, dtype=np.uint32)
     f.final_coast_duration, f.final_coast_distance = final.result(COASTING)
     f.final_brake_duration, f.final_brake_distance = final.result(BRAKING)
     return f
