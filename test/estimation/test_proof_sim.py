@@ -104,13 +104,15 @@ def test_regimes_against_the_drivers_labels(period, power, bound, margin, hold_b
     assert (right - rule_right) / total > margin
 
 
-@pytest.mark.parametrize("period, power", [(10.0, False), (1.0, True)])
-def test_features_against_truth(period, power):
+@pytest.mark.parametrize("period, power, coast_bound", [(10.0, False, 10.0), (1.0, True, 1.0), (1.0, False, 7.0)])
+def test_features_against_truth(period, power, coast_bound):
     """Brake rate per step within 0.05 m/s^2, cruise speed within 2 km/h (runs holding the speed), max power within
     10 % where the driver reached at least 70 % of the train's; final brake within one sample period at 10 s (measured
     -5.5..-0.3 s) and 1 s at 1 Hz (-0.2..+0.6 s), against the simulator's exact phases (truth JSON summary); final
     coast within one sample period at 10 s (-8.8..+5.4 s) and at 1 Hz with power (-0.15..+0.9 s: its start and end
-    lie in the steps where the traction power ends and the electric brake begins; on the speeds alone -0.6..+6.0 s)."""
+    lie in the steps where the traction power ends and the electric brake begins); on GNSS and speed alone at 1 Hz
+    -0.6..+6.0 s (the start of a coast on 1 km/h speeds: the data's limit, bench/final_coast_bound.py). Brake rates
+    at 1 Hz without power: max error 0.02 m/s^2 (0.18 before the rates stopped at a brake's located end)."""
     fcfg = FeatureConfig()
     for k in range(4):
         run, ms, _truth, train = simulated_run(k, period, power)
@@ -125,7 +127,7 @@ def test_features_against_truth(period, power):
             assert abs(f.max_tractive_power / ft.max_tractive_power - 1.0) < 0.10
         summary = run.meta["summary"]
         assert abs(f.final_brake_duration - summary["final_brake_s"]) <= period
-        assert abs(f.final_coast_duration - summary["final_coast_s"]) <= period
+        assert abs(f.final_coast_duration - summary["final_coast_s"]) <= coast_bound
 
 
 def test_bundled_bags_through_the_graph():
