@@ -101,6 +101,21 @@ def test_regimes_one_sample_late_give_the_pipeline_s_messages(bag, tmp_path, mod
     assert [r.stamp_ns for r in lagged.regimes] == [e.stamp_ns for e in lagged.estimates]  # each once, in order
 
 
+def test_the_converging_preset_gives_the_pipeline_s_messages(bag, tmp_path):
+    """With the converging filter (known effort from the speeds and from the traction power) the estimates carry
+    every effort source, regime_node passes them on, and feature_node locates the phase changes on them: the graph
+    still publishes what run_bag computes."""
+    from train_calib.commands.replay import preset_params_yaml
+    from train_calib.estimation import EFFORT_COMPUTED, EFFORT_POWER, EFFORT_POWER_COASTING, UKFConfig
+
+    params = tmp_path / "converging.yaml"
+    params.write_text(preset_params_yaml("converging"))
+    _replay(bag, tmp_path / "out", params_files=(params,))
+    converging = run_bag(bag, load_track(TRACK), load_train(TRAIN), ukf=UKFConfig.converging())
+    assert {EFFORT_COMPUTED, EFFORT_POWER, EFFORT_POWER_COASTING} <= {e.effort_source for e in converging.estimates}
+    assert compare(read_outputs(tmp_path / "out"), converging) == []
+
+
 def _decoded_with_mcap(path: Path) -> dict[str, list]:
     from mcap.reader import make_reader
     from mcap_ros2.decoder import DecoderFactory
