@@ -404,10 +404,10 @@ class FeatureConfig(ParamSet):
     )
     boundary_from_power: bool = param(
         True,
-        "boundary refinement: where the effort source shows a change (measured traction power ending or starting "
-        "around a coast, electric braking starting after traction), the change lies between the two samples where "
-        "the power changed: the middle of that step (of several steps: the speed break within them); a coast is "
-        "not merged across measured traction",
+        "boundary refinement: where the effort sources show the start or end of a coast (measured traction power "
+        "ending before it or starting after it, electric braking starting after it), the change lies between the "
+        "two samples where the power changed: the middle of that step (of two steps: the speed break within them); "
+        "a coast is not merged across measured traction",
     )
     hold_check_window: float = param(
         120.0,
