@@ -270,6 +270,19 @@ def test_final_phases_definitions_and_the_hold_before_the_stop():
         assert_same_features(extract_features(est, regimes, cfg), inc)
 
 
+def test_the_hold_is_cut_off_when_the_stop_brake_is_labelled_late():
+    """The profile above at 1 Hz, the limit brake and the hold read as coasting and the first 4 s of the stop brake
+    too (the labels follow the windowed acceleration): the hold check looks at the coast only up to its located end,
+    so the stop brake's first seconds do not hide the hold (565 s before: the hold counted as coasting)."""
+    knots = [(0, 140), (100, 140), (600, 45), (610, 40), (660, 40), (680, 0), (720, 0)]
+    est, t = profile_series(knots, period=1.0)
+    regimes = np.select([t <= 100, t <= 664, t <= 680], [CRUISING, COASTING, BRAKING], UNKNOWN).astype(np.uint8)
+    cfg = FeatureConfig()
+    f = extract_features(est, regimes, cfg)
+    assert f.final_coast_duration == pytest.approx(510.0, abs=20.0)
+    assert_same_features(f, incremental(est, regimes, cfg)[0])
+
+
 def test_final_brake_after_an_intermediate_stop():
     """A stop in the middle of a run (a signal) ends a braking phase; the final brake is the one before the last
     stop, and the final coast the coasting before it."""

@@ -607,15 +607,18 @@ class _FinalPhases:
     def result(self, regime: int) -> tuple[float, float]:
         """(duration s, distance m) of the final COASTING or BRAKING phase so far; NaN when there is none.
 
-        Final coast with ``boundary_refinement``: a hold at its end (``_hold_tail``) is cut off; a phase that is
-        then shorter than ``final_coast_min_duration`` was a hold, and the coasting phase before it is the final one.
+        Final coast with ``boundary_refinement``: a hold at its end (``_hold_tail``, on the phase up to its located
+        end) is cut off; a phase that is then shorter than ``final_coast_min_duration`` was a hold, and the coasting
+        phase before it is the final one.
         """
         if regime == BRAKING or not self.refine:
             ph = self.final[regime]
             return ph.bounds(self.refine) if ph is not None else (_NAN, _NAN)
         cfg = self.cfg
         for ph in reversed(self._coasts):
-            t_hold = _hold_tail(ph.tail, ph.w_last, cfg.hold_check_min)
+            t_end = ph.end_point(True)[0]  # the samples labelled coasting after its located end are the next phase's
+            tail = [p for p in ph.tail if p[0] <= t_end] if ph.end is not None else ph.tail
+            t_hold = _hold_tail(tail, ph.w_last, cfg.hold_check_min)
             if t_hold is None:
                 return ph.bounds(True)
             t0, s0 = ph.start_point(True)
