@@ -28,8 +28,9 @@ def synthetic_run(seed: int = 0, period: float = 10.0):
 
 
 @cache
-def simulated_run(k: int, period: float, power: bool = False):
-    """A simulated 32 km intercity run (virm6, true Davis 5-20 % off the file's), as bench_whole_run makes them."""
+def simulated_run(k: int, period: float, power: bool = False, electric_brake_fraction: float = 0.8):
+    """A simulated 32 km intercity run (virm6, true Davis 5-20 % off the file's), as bench_whole_run makes them;
+    electric_brake_fraction: the brake's electric (regenerating) share (SensorParams)."""
     from train_calib.paths import track_file, train_file
     from train_calib.sim import DriverParams, SensorParams, simulate_run
     from train_calib.track import load_track
@@ -41,6 +42,11 @@ def simulated_run(k: int, period: float, power: bool = False):
     factors = 1.0 + rng.choice([-1.0, 1.0], 3) * rng.uniform(0.05, 0.2, 3)
     truth = Davis(*(np.array(train.davis.as_tuple()) * factors))
     driver = DriverParams.sample(rng, train=train)
-    sensors = SensorParams(gnss_period_s=period, speed_period_s=period, power_period_s=period if power else 0.0)
+    sensors = SensorParams(
+        gnss_period_s=period,
+        speed_period_s=period,
+        power_period_s=period if power else 0.0,
+        electric_brake_fraction=electric_brake_fraction,
+    )
     run = simulate_run(track, train, driver=driver, sensors=sensors, rng=rng, resistance=truth)
     return run, run.measurements(track, train), truth, train

@@ -29,7 +29,7 @@ from train_calib.estimation import (
     fleet_statistics,
 )
 from train_calib.estimation.features import Features
-from train_calib.estimation.records import EFFORT_POWER, EFFORT_POWER_COASTING
+from train_calib.estimation.records import EFFORT_COMPUTED, EFFORT_POWER, EFFORT_POWER_COASTING
 from train_calib.physics import KMH
 
 
@@ -341,6 +341,15 @@ def test_measured_power_places_the_changes_of_the_final_coast():
     computed, _ = powered_profile(knots, switches, measured=False)
     assert_same_features(extract_features(computed, regimes, cfg), extract_features(computed, regimes, cfg.replace(
         boundary_from_power=False)))  # fmt: skip
+    # without power coasting (UKFConfig.power_coasting false: the coasting steps computed) the start is still where
+    # the traction power ended, (100, 101]; the end is on the speeds
+    no_coasting, _ = powered_profile(knots, switches)
+    no_coasting.effort_source[no_coasting.effort_source == EFFORT_POWER_COASTING] = EFFORT_COMPUTED
+    f = extract_features(no_coasting, regimes, cfg)
+    assert abs(f.final_coast_duration - 500.3) < 1.0
+    assert abs(extract_features(no_coasting, regimes, cfg.replace(boundary_from_power=False)).final_coast_duration
+               - 500.3) > 5.0  # fmt: skip
+    assert_same_features(f, incremental(no_coasting, regimes, cfg)[0])
 
 
 def test_a_coast_is_not_merged_across_measured_traction():

@@ -263,6 +263,11 @@ def test_effort_source_says_where_the_effort_came_from():
     np.testing.assert_array_equal([est.update(m).effort_source for m in s], src)
     gnss_only = estimate_run(series, train, UKFConfig.converging()).effort_source
     assert set(np.unique(gnss_only)) == {EFFORT_COMPUTED, EFFORT_COASTING}
+    # power_coasting false (no electric brake, or a meter without regeneration): traction from power, coasting only
+    # where the speeds confirm it
+    no_power_coasting = estimate_run(s, train, UKFConfig.converging(power_coasting=False)).effort_source
+    assert set(np.unique(no_power_coasting)) == {EFFORT_COMPUTED, EFFORT_COASTING, EFFORT_POWER}
+    np.testing.assert_array_equal(no_power_coasting == EFFORT_POWER, src == EFFORT_POWER)
 
 
 def test_config_validation_and_presets():

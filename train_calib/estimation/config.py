@@ -144,6 +144,12 @@ class UKFConfig(ParamSet):
     power_threshold: float = param(
         0.005, "wheel power per effective mass below this counts as no traction", unit="W/kg", low=0.0
     )
+    power_coasting: bool = param(
+        True,
+        "use_power: a step with neither traction nor regenerated power at both ends and no clear braking in the "
+        "speeds is coasting (u = 0 known). False where braking need not show in the power (no electric brake, or a "
+        "meter that reports no regeneration): such steps are then coasting only where the speeds confirm it",
+    )
     accel_window: float = param(
         10.0,
         "the published acceleration is the slope of a causal linear fit of the measured speed over this window "

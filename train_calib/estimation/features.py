@@ -264,7 +264,7 @@ def _power_interval(pts: list, t_first: float, lo: float, old: int, new: int) ->
             while j < n and src[j] in _UNMEASURED:
                 j += 1
             if j == n or src[j] != _MEASURED_COAST:
-                return None
+                return _traction_end(src, pts, f, lo)
         i = j - 1
         while i >= 0 and src[i] in _UNMEASURED:
             i -= 1
@@ -280,6 +280,18 @@ def _power_interval(pts: list, t_first: float, lo: float, old: int, new: int) ->
     if k < 0 or k == f or pts[k][0] < lo or src[k + 1] not in _UNMEASURED:
         return None
     return pts[k][0], pts[k + 1][0], True
+
+
+def _traction_end(src: list, pts: list, f: int, lo: float) -> tuple[float, float, bool] | None:
+    """The step after the last measured-traction step before sample f (not before ``lo``), when no measured effort
+    follows it up to f: coasting without power coasting (``UKFConfig.power_coasting`` false, or the speeds showed
+    braking) still starts where the traction power ended."""
+    i = f
+    while i >= 0 and src[i] in _UNMEASURED:
+        i -= 1
+    if i < 0 or i == f or src[i] != _MEASURED_TRACTION or pts[i][0] < lo:
+        return None
+    return pts[i][0], pts[i + 1][0], True
 
 
 def _break_time(pts: list, lo: float, hi: float) -> float | None:

@@ -489,7 +489,7 @@ class ResistanceEstimator:
                             power_kind = "known_effort_power"
                         elif w0 > cfg.power_threshold or w1 > cfg.power_threshold:
                             traction = False  # traction switched within the step
-                        elif effort > -4.0 * cfg.coast_effort_tolerance:
+                        elif cfg.power_coasting and effort > -4.0 * cfg.coast_effort_tolerance:
                             power_u = 0.0  # no traction, no electric brake, not clearly braking: coasting
                             power_kind = "known_effort_power_coast"
                 coast_eligible = power_u is None and traction is None
