@@ -14,6 +14,7 @@ from train_calib.estimation import (
     EstimateSeries,
     FeatureConfig,
     RegimeConfig,
+    ResistanceEstimator,
     UKFConfig,
     classify_regimes,
     estimate_run,
@@ -144,6 +145,13 @@ def test_power_without_electric_braking_needs_power_coasting_off():
         summary = run.meta["summary"]
         assert abs(f.final_brake_duration - summary["final_brake_s"]) <= 1.0
         assert abs(f.final_coast_duration - summary["final_coast_s"]) <= 1.0
+    # the estimator says so (ukf_node warns on /diagnostics): braking without regeneration, with power_coasting on
+    for fraction, unseen in ((0.0, True), (0.8, False)):
+        _run, ms, _truth, train = simulated_run(0, 1.0, True, electric_brake_fraction=fraction)
+        for power_coasting in (True, False):
+            estimator = ResistanceEstimator(train, UKFConfig.converging(power_coasting=power_coasting))
+            estimate_run(ms, train, estimator=estimator)
+            assert (estimator.power_braking_unseen() > 0) == (unseen and power_coasting)
 
 
 def test_bundled_bags_through_the_graph():

@@ -113,7 +113,11 @@ def test_the_converging_preset_gives_the_pipeline_s_messages(bag, tmp_path):
     _replay(bag, tmp_path / "out", params_files=(params,))
     converging = run_bag(bag, load_track(TRACK), load_train(TRAIN), ukf=UKFConfig.converging())
     assert {EFFORT_COMPUTED, EFFORT_POWER, EFFORT_POWER_COASTING} <= {e.effort_source for e in converging.estimates}
-    assert compare(read_outputs(tmp_path / "out"), converging) == []
+    outputs = read_outputs(tmp_path / "out")
+    assert compare(outputs, converging) == []
+    # the synthetic bag's power never regenerates, its second run brakes with the power at 0: ukf_node says so
+    messages = {s.message for d in outputs["/diagnostics"] for s in d.status if s.name.startswith("ukf_node")}
+    assert any("braking without regenerated power" in m and "power_coasting false" in m for m in messages)
 
 
 def _decoded_with_mcap(path: Path) -> dict[str, list]:

@@ -186,6 +186,8 @@ class ResistanceEstimator:
             "known_effort_rejected": 0,
             "known_effort_power": 0,
             "known_effort_power_coast": 0,
+            "power_regenerating": 0,
+            "power_braking_unseen": 0,
             "coast_unconfirmed": 0,
             "nonpositive_dt": 0,
             "invalid_input": 0,
@@ -237,6 +239,18 @@ class ResistanceEstimator:
             self._rf.x = None
         self._run_id = None
         self._reset_run_state()
+
+    def power_braking_unseen(self) -> int:
+        """Steps on which the speeds brake clearly while the power shows neither traction nor regeneration, when
+        ``power_coasting`` is on and they are at least 10 and four times the regenerating steps; else 0. Braking then
+        does not show in the power (no electric brake, or a meter without regeneration): the first steps of each
+        brake are taken as power coasting, and ``power_coasting`` should be false (docs/estimator.md). Simulated
+        runs: 13-57 such steps per run without electric brake, none with it."""
+        c = self.counters
+        unseen = c["power_braking_unseen"]
+        if self.config.power_coasting and unseen >= 10 and unseen >= 4 * c["power_regenerating"]:
+            return unseen
+        return 0
 
     def flush(self) -> None:
         """Let the resistance filter use every measurement still waiting for its look-ahead (end of a
@@ -481,6 +495,7 @@ class ResistanceEstimator:
                 if cfg.use_power and pv0 and power_valid:
                     if pr0 > 0.0 or power_regen > 0.0:
                         traction = False  # electric braking: f_b unknown (blended)
+                        counters["power_regenerating"] += 1
                     else:
                         w0 = self._power.wheel_power(pc0)
                         w1 = self._power.wheel_power(power_consumed)
@@ -489,9 +504,12 @@ class ResistanceEstimator:
                             power_kind = "known_effort_power"
                         elif w0 > cfg.power_threshold or w1 > cfg.power_threshold:
                             traction = False  # traction switched within the step
-                        elif cfg.power_coasting and effort > -4.0 * cfg.coast_effort_tolerance:
-                            power_u = 0.0  # no traction, no electric brake, not clearly braking: coasting
-                            power_kind = "known_effort_power_coast"
+                        elif effort > -4.0 * cfg.coast_effort_tolerance:
+                            if cfg.power_coasting:
+                                power_u = 0.0  # no traction, no electric brake, not clearly braking: coasting
+                                power_kind = "known_effort_power_coast"
+                        else:
+                            counters["power_braking_unseen"] += 1  # the speeds brake, the power shows no brake
                 coast_eligible = power_u is None and traction is None
             known_u, kind = power_u, power_kind
             if coast_eligible and self._coast_pass:  # the confirmation window up to the previous sample

@@ -112,6 +112,12 @@ class UkfNode(TrainCalibNode):
             problems.append((WARN, f"innovations inconsistent (NIS) on {new[HEALTH_DEGRADED]} updates"))
         if new[HEALTH_REPAIRED]:
             problems.append((WARN, f"covariance repaired {new[HEALTH_REPAIRED]} times"))
+        unseen = self.estimator.power_braking_unseen()
+        if unseen:
+            problems.append(
+                (WARN, f"braking without regenerated power on {unseen} steps: no electric brake or no regeneration "
+                       "metered? set power_coasting false")
+            )  # fmt: skip
         return problems
 
 
