@@ -265,9 +265,7 @@ def _power_interval(pts: list, t_first: float, lo: float, old: int, new: int) ->
                 j += 1
             if j == n or src[j] != _MEASURED_COAST:
                 return _traction_end(src, pts, f, lo)
-        i = j - 1
-        while i >= 0 and src[i] in _UNMEASURED:
-            i -= 1
+        i = _last_measured(src, j - 1)
         gap = j - 1 - i
         if i < 0 or src[i] != _MEASURED_TRACTION or not 1 <= gap <= _POWER_GAP_STEPS:
             return None
@@ -282,13 +280,18 @@ def _power_interval(pts: list, t_first: float, lo: float, old: int, new: int) ->
     return pts[k][0], pts[k + 1][0], True
 
 
+def _last_measured(src: list, k: int) -> int:
+    """Index of the last step at or before k whose effort source is not in _UNMEASURED; -1 if none."""
+    while k >= 0 and src[k] in _UNMEASURED:
+        k -= 1
+    return k
+
+
 def _traction_end(src: list, pts: list, f: int, lo: float) -> tuple[float, float, bool] | None:
     """The step after the last measured-traction step before sample f (not before ``lo``), when no measured effort
     follows it up to f: coasting without power coasting (``UKFConfig.power_coasting`` false, or the speeds showed
     braking) still starts where the traction power ended."""
-    i = f
-    while i >= 0 and src[i] in _UNMEASURED:
-        i -= 1
+    i = _last_measured(src, f)
     if i < 0 or i == f or src[i] != _MEASURED_TRACTION or pts[i][0] < lo:
         return None
     return pts[i][0], pts[i + 1][0], True
@@ -628,8 +631,10 @@ class _FinalPhases:
             return ph.bounds(self.refine) if ph is not None else (_NAN, _NAN)
         cfg = self.cfg
         for ph in reversed(self._coasts):
-            t_end = ph.end_point(True)[0]  # the samples labelled coasting after its located end are the next phase's
-            tail = [p for p in ph.tail if p[0] <= t_end] if ph.end is not None else ph.tail
+            tail = ph.tail
+            if ph.end is not None:  # the samples labelled coasting after its located end are the next phase's
+                t_end = ph.end.time(True)
+                tail = [p for p in tail if p[0] <= t_end]
             t_hold = _hold_tail(tail, ph.w_last, cfg.hold_check_min)
             if t_hold is None:
                 return ph.bounds(True)
@@ -665,7 +670,7 @@ class _BrakeRates:
         """The braking run ended with the change ``end`` (the last one located)."""
         if self.open:
             if end is None or end.kind == "stop":
-                self._commit(self.open, math.inf)
+                _count_until(self.open, math.inf, self.done)
             else:
                 self.closing.append((end, self.open))
             self.open = []
@@ -677,27 +682,27 @@ class _BrakeRates:
             keep = []
             for end, items in self.closing:
                 if end.closed:
-                    self._commit(items, end.time(self.refine))
+                    _count_until(items, end.time(self.refine), self.done)
                 else:
                     keep.append((end, items))
             self.closing = keep
-
-    def _commit(self, items: list[tuple[float, int, float]], t_end: float) -> None:
-        for t, step, rate in items:
-            if t <= t_end:
-                self.done[step].add(rate)
 
     def result(self) -> list[tuple[float, float, int]]:
         """(mean, sample std, count) per step, the waiting samples included as they stand."""
         if not self.open and not self.closing:
             return [m.result() for m in self.done]
         moments = [m.copy() for m in self.done]
-        waiting = [(items, end.time(self.refine)) for end, items in self.closing] + [(self.open, math.inf)]
-        for items, t_end in waiting:
-            for t, step, rate in items:
-                if t <= t_end:
-                    moments[step].add(rate)
+        for end, items in self.closing:
+            _count_until(items, end.time(self.refine), moments)
+        _count_until(self.open, math.inf, moments)
         return [m.result() for m in moments]
+
+
+def _count_until(items: list[tuple[float, int, float]], t_end: float, moments: list[_Moments]) -> None:
+    """Add the rates of the (t, step, rate) items with t <= t_end to their step's moments."""
+    for t, step, rate in items:
+        if t <= t_end:
+            moments[step].add(rate)
 
 
 def _fit(n: int, sv: float, su: float, svv: float, svu: float) -> tuple[float, float, float]:

@@ -295,7 +295,7 @@ class ResistanceEstimator:
             dt=dt,
             input_effort=u_in,
             v_measured=float(m.v),
-            effort_source=source,
+            effort_source=int(source),
         )
 
     # -- internals ------------------------------------------------------------------------------
@@ -517,7 +517,7 @@ class ResistanceEstimator:
                 provisional = True
             if known_u is not None:
                 if self._known_predict(h, dt, known_u, g_prev, zv, rv, split):
-                    known = _SOURCE[kind]
+                    known = _SOURCE[kind]  # the effort source, truthy (EFFORT_COMPUTED, 0, is "not known")
                     u = effort = known_u
                     if not split:
                         counters[kind] += 1
