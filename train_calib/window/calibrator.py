@@ -13,6 +13,7 @@ from .config import WindowConfig
 from .fast import FastFit
 from .fit import WindowFit, fit_design
 from .model import BRAKING, UNKNOWN, StepModel
+from .pooled import PooledResistance, WindowEquations
 
 
 class _RowBuffer:
@@ -238,6 +239,11 @@ class WindowCalibrator:
     False: every window by the reference solver (``fit_design``). compiled: that fit, and the window's
     steps and rows, by the C kernel where the package has it (False: in Python only; same results to
     round-off).
+
+    Every fit also carries the window's resistance at its mean speed with its sigma (well posed whenever the train
+    moves under measured power) and the run's windows pooled into r(v) with its covariance (``pooled``, a
+    :class:`~.pooled.PooledResistance` from the train file's prior; kept across runs and settings, cleared by
+    ``reset``): see :mod:`.pooled`.
     """
 
     def __init__(
@@ -249,12 +255,17 @@ class WindowCalibrator:
         self.counts: Counter[str] = Counter()
         self.last_fit: WindowFit | None = None
         self._origin_ns: int | None = None
+        self.pooled = PooledResistance(train.davis)
+        self._r2_std = math.sqrt(float(self.pooled.prior_cov[2, 2]))
         self.set_config(config or WindowConfig())
 
     def set_config(self, config: WindowConfig) -> None:
         """New settings: the window restarts (its steps depend on them); published values are kept."""
         self.config = config
         step = StepModel(self.train, config)
+        self._step = step
+        self._equations = WindowEquations()
+        self._pool_last: tuple | None = None  # (regime or -1, sample as StepModel.row takes it, regenerating)
         self._fit = FastFit(self.train, config, self.compiled)
         # the C kernel's window where the fast fit runs in C, else the same in Python
         self._window = (self._fit.new_window(step) if self.fast else None) or _PyWindow(
@@ -280,9 +291,12 @@ class WindowCalibrator:
         self._clear()
         self._origin_ns = None
         self.last_fit = None
+        self.pooled.clear()
 
     def _clear(self) -> None:
         self._window.clear()
+        self._equations.clear()
+        self._pool_last = None
         self._last = None
 
     def update(self, m: Measurement, regime: int | None = None) -> WindowFit | None:
@@ -306,6 +320,7 @@ class WindowCalibrator:
         if self._window.push(m.stamp_ns, t, m.v, m.power_valid, m.power_consumed, m.power_regenerated, m.track_force,
                              m.tunnel_fraction, m.v_variance, regime, m.stamp_ns - self._window_ns):  # fmt: skip
             self.counts["invalid_step"] += 1
+        self._push_equation(m, t, regime)
         if not m.power_valid:
             self.counts["no_power"] += 1
             return None
@@ -314,11 +329,40 @@ class WindowCalibrator:
         if not self._window.steps:  # no step in the window
             return None
         fit = self._fit_window(m.stamp_ns, m.run_id)
+        self._resistance_at_speed(fit, m.v_variance)
         self.counts["ill_posed" if fit.ill_posed else "well_posed"] += 1
         if fit.dropped_constraints:
             self.counts["windows_with_dropped_constraints"] += 1
         self.last_fit = fit
         return fit
+
+    def _push_equation(self, m: Measurement, t: float, regime: int) -> None:
+        """The step to m in the window's equation (pooled.WindowEquations): the row the fit takes, in Python (one
+        StepModel.row per sample), used unless braking (as the fit) or regenerating at either end."""
+        step = self._step
+        force = step.force(m.v, m.power_consumed, m.power_regenerated) if m.power_valid else math.nan
+        sample = (t, m.v, force, m.track_force, m.tunnel_fraction, m.v_variance, step.limit(m.v))
+        regenerating = m.power_valid and m.power_regenerated > 0.0
+        previous, self._pool_last = self._pool_last, (regime, sample, regenerating)
+        if previous is not None:
+            row = step.row(previous[1], sample)
+            use = False
+            if row is not None:
+                step_regime = previous[0] if previous[0] >= 0 else step.regime(row[7], row[6])
+                kept = not (self.config.exclude_braking and step_regime == BRAKING)
+                use = kept and not (previous[2] or regenerating)
+            self._equations.push(m.stamp_ns, t - previous[1][0], row, use)
+        self._equations.expire(m.stamp_ns - self._window_ns)
+
+    def _resistance_at_speed(self, fit: WindowFit, v_variance: float) -> None:
+        """The window's resistance at its mean speed (fit.resistance_*) and the pooled r(v) (fit.pooled*)."""
+        equation = self._equations.equation(v_variance)
+        pooled = self.pooled
+        if equation is not None:
+            pooled.add(equation)
+            value, std = equation.resistance_at_mean_speed(self.train.davis.r2, self._r2_std, pooled.scale)
+            fit.resistance_speed, fit.resistance_at_speed, fit.resistance_at_speed_std = equation.mean_speed, value, std
+        fit.pooled, fit.pooled_covariance, fit.pooled_windows = pooled.published
 
     def _fit_window(self, stamp_ns: int, run_id: int) -> WindowFit:
         context = {"stamp_ns": stamp_ns, "run_id": run_id, "previous": self.last_fit}

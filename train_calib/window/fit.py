@@ -52,6 +52,14 @@ class WindowFit:
     why: tuple = ()  # why ill posed, unformatted (see ``reason``); () when well posed
     relative_error: float = math.inf  # max standard error of r(v) at the reference speeds / train file r(v)
     dropped_constraints: int = 0  # eq. 6/7 rows infeasible on their own (noise at the envelope), left out
+    # the window's resistance at its own speed (pooled.py; the streaming calibrator sets these, NaN otherwise)
+    resistance_speed: float = math.nan  # mean speed of the rows with measured effort, m/s
+    resistance_at_speed: float = math.nan  # open-air r(resistance_speed), N/kg
+    resistance_at_speed_std: float = math.nan  # its sigma, N/kg
+    # the run's windows pooled into r(v) (pooled.PooledResistance): N/kg units, covariance 3 x 3 row-major
+    pooled: tuple[float, float, float] = NAN3
+    pooled_covariance: tuple[float, ...] = ()
+    pooled_windows: int = 0  # windows pooled (0: the prior)
 
     @property
     def reason(self) -> str:
