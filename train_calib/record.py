@@ -208,7 +208,16 @@ def message_class(msgtype: str) -> Any:
 class Recorder:
     """Raw subscriptions on a node writing every message of `topics` to a McapBagWriter."""
 
-    def __init__(self, node: Any, writer: McapBagWriter, topics: dict[str, str], depth: int = 10000) -> None:
+    def __init__(
+        self,
+        node: Any,
+        writer: McapBagWriter,
+        topics: dict[str, str],
+        depth: int = 10000,
+        forward: dict[str, Any] | None = None,
+    ) -> None:
+        """`forward`: topic -> publisher (of another context) that gets every message received, as received
+        (``train-calib replay --live``)."""
         from .nodes.common import reliable_qos
 
         self.node = node
@@ -217,11 +226,15 @@ class Recorder:
         clock = node.get_clock()
         qos = reliable_qos(depth)
         self.subscriptions = []
+        forward = forward or {}
         for topic, msgtype in topics.items():
+            out = forward.get(topic)
 
-            def callback(data: bytes, topic: str = topic) -> None:
+            def callback(data: bytes, topic: str = topic, out: Any = out) -> None:
                 writer.write_raw(topic, data, clock.now().nanoseconds)
                 self.received[topic] += 1
+                if out is not None:
+                    out.publish(data)
 
             self.received[topic] += 0
             self.subscriptions.append(node.create_subscription(message_class(msgtype), topic, callback, qos, raw=True))

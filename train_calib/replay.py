@@ -24,6 +24,15 @@ does not depend on scheduling.
 window_calib_node runs when the bag has ``/train/traction_power`` (``window=None``, the default), or as
 ``window`` True/False forces.
 
+Isolation: by default the graph (nodes, replay, recorder) runs in a ROS domain of its own with localhost-only
+discovery (:mod:`train_calib.isolation`: an id no other replay, train_calib test run or participant on the host
+uses, claimed for the replay's life; the node processes of ``processes=True`` get the same environment), so
+concurrent replays, and a live graph on the host or the network, never exchange messages with it and the recorder
+keeps only what its own nodes published. ``live=True`` also publishes into the caller's environment (its
+``ROS_DOMAIN_ID`` and discovery settings): the inputs and ``/clock`` as they are replayed and every output as the
+recorder receives it, from a second context; nothing from there enters the graph. ``domain_id=N`` runs the graph
+itself in domain N with the caller's discovery settings (no isolation: for tools attached to that domain).
+
 Nodes run in this process on one executor (the rclpy EventsExecutor when available, else the
 SingleThreadedExecutor), or each in its own process (``processes=True``), watched through
 ``/train_calib/progress``. The EventsExecutor is the default because it is the faster one for this graph:
@@ -45,6 +54,7 @@ from typing import Any
 from . import paths
 from .bagio import INPUT_TOPICS, OUTPUT_TOPICS, POWER_TOPIC, BagDamage, bag_topics, iter_bag, typestore
 from .errors import BagError, ConfigError, TrainCalibError
+from .isolation import MAX_DOMAIN_ID, DomainClaim, claim_domain, environment, isolated_environment
 from .nodes.config import GRAPH_NODES, WINDOW_NODE
 from .record import METADATA_FILE, OUTPUT_FILE, qos_dict
 from .track import load_track
@@ -90,6 +100,8 @@ class ReplayOptions:
     extra_nodes: Callable[[Any], Sequence[Any]] | None = None  # context -> nodes to spin with the graph
     until_s: float | None = None  # replay only the first `until_s` seconds of bag time
     graph_factory: Callable[..., Any] | None = None  # (context, names, overrides, params_files) -> Graph (benchmarks)
+    domain_id: int | None = None  # None: a domain of its own, localhost only (isolated); N: the graph in domain N
+    live: bool = False  # also publish the inputs, /clock and the outputs into the caller's environment
 
 
 @dataclass
@@ -111,6 +123,9 @@ class ReplayResult:
     input_error: str | None = None  # the input bag was damaged: replayed what could be read (exit status 3)
     undecodable: dict[str, int] = field(default_factory=dict)
     signal: int | None = None  # the signal that interrupted the replay (SIGINT 2, SIGTERM 15)
+    domain_id: int | None = None  # the ROS domain the graph ran in
+    isolated: bool = True  # the graph ran in a domain of its own, localhost only
+    live: bool = False  # inputs, /clock and outputs were also published into the caller's environment
 
 
 @dataclass
@@ -205,8 +220,16 @@ class Replay:
         from rclpy.signals import SignalHandlerOptions
 
         o = self.o
-        if o.rate < 0:
-            raise ConfigError("replay", "rate", f"{o.rate:g} is out of range: must be at least 0")
+        if not o.rate >= 0 or o.rate == float("inf"):  # also NaN
+            raise ConfigError("replay", "rate", f"{o.rate:g} is out of range: must be a finite number, at least 0")
+        if o.domain_id is not None and not 0 <= o.domain_id <= MAX_DOMAIN_ID:
+            raise ConfigError("replay", "domain_id", f"{o.domain_id} is out of range: must be 0..{MAX_DOMAIN_ID}")
+        if o.wait_for_subscribers and o.domain_id is None and not o.live:
+            raise ConfigError(
+                "replay",
+                "wait_for_subscribers",
+                "an isolated replay has no subscribers but its own: add --live (or --domain-id N)",
+            )
         for f in o.params_files:
             load_yaml_mapping(f, "params file")
         inputs = load_inputs(o.bag)
@@ -217,15 +240,35 @@ class Replay:
         track_path, train_path = resolve_inputs(o.track, o.train)
         prepare_out(o.out, o.overwrite)
 
+        claim: DomainClaim | None = None
+        if o.domain_id is None:
+            claim = claim_domain()
+            self.graph_env = isolated_environment(claim.domain_id)
+        else:
+            self.graph_env = {"ROS_DOMAIN_ID": str(o.domain_id)}
+        self.domain_id = int(self.graph_env["ROS_DOMAIN_ID"] or 0)
         context = Context()
-        rclpy.init(args=[], context=context, signal_handler_options=SignalHandlerOptions.NO)
-        previous = {s: signal.signal(s, self._on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+        live_context = None
         try:
-            return self._run(context, inputs, track_path, train_path)
+            with environment(self.graph_env):  # rcl reads the domain and discovery settings at init
+                rclpy.init(
+                    args=[], context=context, domain_id=self.domain_id, signal_handler_options=SignalHandlerOptions.NO
+                )
+            if o.live:  # the caller's own environment
+                live_context = Context()
+                rclpy.init(args=[], context=live_context, signal_handler_options=SignalHandlerOptions.NO)
+            previous = {s: signal.signal(s, self._on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+            try:
+                return self._run(context, inputs, track_path, train_path, live_context)
+            finally:
+                for s, handler in previous.items():
+                    signal.signal(s, handler)
         finally:
-            for s, handler in previous.items():
-                signal.signal(s, handler)
+            if live_context is not None:
+                rclpy.try_shutdown(context=live_context)
             rclpy.try_shutdown(context=context)
+            if claim is not None:
+                claim.release()
 
     def _on_signal(self, signum: int, frame: Any) -> None:
         if self._stop.is_set():
@@ -233,7 +276,9 @@ class Replay:
         self._signum = signum
         self._stop.set()
 
-    def _run(self, context: Any, inputs: BagInputs, track_path: Path, train_path: Path) -> ReplayResult:
+    def _run(
+        self, context: Any, inputs: BagInputs, track_path: Path, train_path: Path, live_context: Any = None
+    ) -> ReplayResult:
         import rclpy
         from builtin_interfaces.msg import Time
         from rclpy.parameter import Parameter
@@ -260,7 +305,20 @@ class Replay:
         self._clock_msg, self._time_msg = Clock, Time
         out_qos = {t: qos_dict(depth=1000) for t in OUTPUT_TOPICS} | {"/diagnostics": qos_dict(depth=100)}
         writer = McapBagWriter(o.out, OUTPUT_TOPICS, qos=out_qos)
-        self.recorder = Recorder(rec_node, writer, OUTPUT_TOPICS)
+        self.live_node = None
+        self.live_pubs: dict[str, Any] = {}
+        self.live_outputs: dict[str, Any] = {}
+        if live_context is not None:  # a second context in the caller's environment: publishes, never subscribes
+            self.live_node = rclpy.create_node("train_calib_replay_live", context=live_context)
+            self.live_pubs = {
+                t: self.live_node.create_publisher(message_class(ty), t, qos) for t, ty in inputs.topics.items()
+            }
+            self.live_pubs["/clock"] = self.live_node.create_publisher(Clock, "/clock", reliable_qos(10))
+            self.live_outputs = {
+                t: self.live_node.create_publisher(message_class(ty), t, reliable_qos(1000))
+                for t, ty in OUTPUT_TOPICS.items()
+            }
+        self.recorder = Recorder(rec_node, writer, OUTPUT_TOPICS, forward=self.live_outputs or None)
         graph = None
         extra: list[Any] = []
         wall0 = time.monotonic()
@@ -272,7 +330,13 @@ class Replay:
             if o.graph_factory is not None:
                 graph = o.graph_factory(context, self.node_names, overrides, o.params_files)
             elif o.processes:
-                graph = ProcessGraph(self.node, self.node_names, overrides | {"report_progress": True}, o.params_files)
+                graph = ProcessGraph(
+                    self.node,
+                    self.node_names,
+                    overrides | {"report_progress": True},
+                    o.params_files,
+                    env_changes=self.graph_env,
+                )
             else:
                 graph = InProcessGraph(context, self.node_names, overrides, o.params_files)
             self.graph = graph
@@ -287,7 +351,7 @@ class Replay:
             self._log(
                 f"replaying {len(inputs.messages)} messages ({inputs.duration_s:.0f} s of bag time) through "
                 f"{', '.join(graph.names)} ({'one process per node' if o.processes else 'one process'}, "
-                f"rate {'max' if o.rate == 0 else f'{o.rate:g}x'})"
+                f"rate {'max' if o.rate == 0 else f'{o.rate:g}x'}; {self._where()})"
             )
             try:
                 if interrupted:
@@ -330,6 +394,8 @@ class Replay:
                 n.destroy_node()
             rec_node.destroy_node()
             self.node.destroy_node()
+            if self.live_node is not None:
+                self.live_node.destroy_node()
         wall = time.monotonic() - wall0
         return ReplayResult(
             out=o.out,
@@ -348,7 +414,20 @@ class Replay:
             input_error=inputs.error,
             undecodable=dict(inputs.undecodable),
             signal=self._signum if interrupted else None,
+            domain_id=self.domain_id,
+            isolated=o.domain_id is None,
+            live=o.live,
         )
+
+    def _where(self) -> str:
+        """Where the graph runs, for the log."""
+        o = self.o
+        where = (
+            f"ROS domain {self.domain_id} of its own, localhost only"
+            if o.domain_id is None
+            else f"ROS domain {self.domain_id}, not isolated"
+        )
+        return where + ("; inputs, /clock and outputs also published to your environment (--live)" if o.live else "")
 
     def _make_executor(self, context: Any) -> tuple[Any, str]:
         from .nodes.common import make_executor
@@ -364,9 +443,10 @@ class Replay:
         if t_ns <= getattr(self, "_clock_ns", -1) and not force:
             return
         self._clock_wall, self._clock_ns = now, t_ns
-        self.clock_pub.publish(
-            self._clock_msg(clock=self._time_msg(sec=int(t_ns // 1_000_000_000), nanosec=int(t_ns % 1_000_000_000)))
-        )
+        msg = self._clock_msg(clock=self._time_msg(sec=int(t_ns // 1_000_000_000), nanosec=int(t_ns % 1_000_000_000)))
+        self.clock_pub.publish(msg)
+        if self.live_pubs:
+            self.live_pubs["/clock"].publish(msg)
 
     def _spin_until(
         self,
@@ -413,14 +493,27 @@ class Replay:
         )
 
     def _wait_connected(self, graph: Any) -> None:
-        extra = 1 + self.o.wait_for_subscribers
+        wanted = self.o.wait_for_subscribers
+        live = self.live_node is not None
+        extra = 1 + (0 if live else wanted)  # live: the extra subscribers are in the caller's environment
         n_nodes = len(graph.names)
+
+        def live_lacking() -> list[str]:
+            if not live or not wanted:
+                return []
+            published = {t for p in graph.progress().values() for t in p.published}
+            return [
+                f"{t} ({self.live_outputs[t].get_subscription_count()} of {wanted} subscribers in your environment)"
+                for t in sorted(published)
+                if t in self.live_outputs and self.live_outputs[t].get_subscription_count() < wanted
+            ]
 
         def ready() -> bool:
             return (
                 len(graph.progress()) == n_nodes
                 and graph.connected(extra)
                 and all(p.get_subscription_count() >= 1 for p in self.pubs.values())
+                and not live_lacking()
             )
 
         def what() -> str:
@@ -435,7 +528,7 @@ class Replay:
                 for t in p.published
                 if p.matched.get(t, 0) < expected[t]
             ]
-            return "subscribers to match: " + ", ".join(lacking)
+            return "subscribers to match: " + ", ".join(lacking + live_lacking())
 
         self._spin_until(ready, what, graph, timeout_s=STARTUP_TIMEOUT_S)
 
@@ -449,6 +542,7 @@ class Replay:
         wall0 = time.monotonic()
         max_behind = 0.0
         check_lag_every = 1 if o.processes else 64
+        live_pubs = self.live_pubs
         for k, (topic, t_ns, data) in enumerate(inputs.messages):
             if self._stop.is_set():
                 raise Interrupted
@@ -468,6 +562,8 @@ class Replay:
                     graph,
                 )
             self.pubs[topic].publish(data)
+            if live_pubs:
+                live_pubs[topic].publish(data)
             sent[topic] += 1
             self._last_sent_ns = t_ns
             if o.on_input is not None:

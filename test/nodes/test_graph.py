@@ -237,7 +237,7 @@ def test_a_separate_das_process_receives_every_message(bag, reference, tmp_path)
     )
     try:
         assert das.stdout.readline().strip() == "READY", das.stderr.read()
-        result = _replay(bag, tmp_path, wait_for_subscribers=1)
+        result = _replay(bag, tmp_path, wait_for_subscribers=1, live=True)
         das.send_signal(signal.SIGINT)
         out, _ = das.communicate(timeout=30)
     finally:

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 import tempfile
 from pathlib import Path
@@ -23,6 +24,7 @@ from typing import Any
 
 from ..bagio import bag_name
 from ..errors import BagError
+from ..isolation import MAX_DOMAIN_ID
 
 NAME = "replay"
 HELP = "replay a bag through the node graph; write output.mcap, summary.json, report.png"
@@ -36,10 +38,32 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", type=Path, help="output directory (default out/<bag name>)")
 
 
+def playback_rate(text: str) -> float:
+    """--rate: a finite number >= 0."""
+    try:
+        rate = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not (math.isfinite(rate) and rate >= 0):
+        raise argparse.ArgumentTypeError(f"{text} is out of range: must be a finite number, at least 0")
+    return rate
+
+
+def domain_id(text: str) -> int:
+    """--domain-id: 0..232."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+    if not 0 <= value <= MAX_DOMAIN_ID:
+        raise argparse.ArgumentTypeError(f"{value} is out of range: must be 0..{MAX_DOMAIN_ID}")
+    return value
+
+
 def add_common_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--rate",
-        type=float,
+        type=playback_rate,
         default=0.0,
         help="playback rate, 1 = real time (default 0: as fast as the graph keeps up)",
     )
@@ -76,7 +100,21 @@ def add_common_arguments(parser: argparse.ArgumentParser) -> None:
         type=int,
         default=0,
         metavar="N",
-        help="start when every output topic has N subscribers besides the recorder (a DAS)",
+        help="start when every output topic has N subscribers besides the recorder (a DAS; needs --live or "
+        "--domain-id)",
+    )
+    parser.add_argument(
+        "--live",
+        action="store_true",
+        help="also publish the inputs, /clock and every output into your ROS environment (ROS_DOMAIN_ID, discovery "
+        "range) for a DAS or rviz; the graph itself stays isolated and takes nothing in from there",
+    )
+    parser.add_argument(
+        "--domain-id",
+        type=domain_id,
+        metavar="N",
+        help="run the graph itself in ROS domain N with your discovery settings (not isolated: other graphs in N "
+        "exchange messages with it). Default: a free domain of its own, localhost only",
     )
     parser.add_argument("--overwrite", action="store_true", help="replace the outputs of a previous replay in DIR")
     parser.add_argument("--no-report", action="store_true", help="do not draw report.png")
@@ -135,6 +173,8 @@ def execute(args: argparse.Namespace, out: Path, track: str, train: str) -> dict
                 wait_for_subscribers=args.wait_for_subscribers,
                 overwrite=args.overwrite,
                 log=log,
+                domain_id=args.domain_id,
+                live=args.live,
             )
         )
     train_spec = load_train(paths.train_file(train))
@@ -161,6 +201,9 @@ def execute(args: argparse.Namespace, out: Path, track: str, train: str) -> dict
             "input_undecodable": result.undecodable,
             "input_counts": result.sent,
             "truth_file": truth["file"] if truth else None,
+            "ros_domain_id": result.domain_id,
+            "isolated": result.isolated,
+            "live": result.live,
         },
     )
     write_summary(out / "summary.json", summary)

@@ -13,13 +13,12 @@ which is all the replay's flow control needs:
 from __future__ import annotations
 
 import importlib
-import os
 import signal
 import subprocess
 import sys
 import tempfile
 import time
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -205,7 +204,12 @@ class ProcessGraph(Graph):
         overrides: dict[str, Any],
         params_files: Sequence[Path] = (),
         log_dir: Path | None = None,
+        env_changes: Mapping[str, str | None] | None = None,
     ) -> None:
+        """`env_changes`: the node processes' environment against os.environ (None values removed), e.g. the
+        replay's own ROS domain (:func:`train_calib.isolation.isolated_environment`)."""
+        from ..isolation import applied
+
         self.names = tuple(names)
         self._progress: dict[str, NodeProgress] = {}
         self._node = node
@@ -219,6 +223,7 @@ class ProcessGraph(Graph):
         log_dir = Path(log_dir or self._tmp.name)
         for name in self.names:
             node_class(name)  # fail early, in one line, for a missing node
+        env = applied(env_changes or {})
         try:
             for name in self.names:
                 cmd = [sys.executable, "-m", NODE_MODULES[name][0], "--ros-args"]
@@ -228,7 +233,7 @@ class ProcessGraph(Graph):
                 self._logs[name] = log
                 with open(log, "wb") as stream:
                     self.procs[name] = subprocess.Popen(
-                        cmd, stdout=stream, stderr=subprocess.STDOUT, env=dict(os.environ), start_new_session=True
+                        cmd, stdout=stream, stderr=subprocess.STDOUT, env=env, start_new_session=True
                     )
         except BaseException:
             self.close()

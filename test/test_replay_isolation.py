@@ -1,0 +1,92 @@
+"""Replays are isolated by default: concurrent replays on one host never exchange messages.
+
+Each replay's graph runs in a ROS domain of its own (claimed with a lock file, so concurrent replays never share
+one) with localhost-only discovery; ``--live`` forwards its inputs, /clock and outputs into the caller's
+environment. The replays here run in one and the same environment (this pytest run's), as parallel CI jobs or two
+terminals on a laptop would.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from repo_paths import REPO
+
+pytestmark = pytest.mark.ros
+
+BAG = REPO / "bags" / "intercity_32km_10s_00"
+COMMAND = ["replay", str(BAG), "--track", "intercity_32km", "--train", "virm6", "--no-report", "--quiet"]
+RATE = "200"  # the bag's 1302 s in about 6.5 s: the replays overlap for most of their run
+
+
+def _start(out: Path, *extra: str) -> subprocess.Popen:
+    return subprocess.Popen(
+        [sys.executable, "-m", "train_calib", *COMMAND, "--out", str(out), *extra],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+
+
+def _outputs(proc: subprocess.Popen, out: Path) -> tuple[dict[str, int], dict[str, float]]:
+    _, stderr = proc.communicate(timeout=240)
+    assert proc.returncode == 0, stderr
+    summary = json.loads((out / "summary.json").read_text())
+    final = {k: summary["final"][k]["value"] for k in ("r0", "r1", "r2")}
+    # /diagnostics is periodic (its count depends on the wall time at a finite rate): every other topic is compared
+    counts = {t: n for t, n in summary["output_counts"].items() if t != "/diagnostics"}
+    return counts, final
+
+
+def test_concurrent_replays_each_give_exactly_their_outputs_alone(tmp_path):
+    alone = _outputs(_start(tmp_path / "alone", "--rate", RATE), tmp_path / "alone")
+    assert alone[0]["/train_calib/resistance"] == 131
+    outs = [tmp_path / f"run{k}" for k in range(3)]
+    procs = [_start(out, "--rate", RATE) for out in outs]
+    results = [_outputs(proc, out) for proc, out in zip(procs, outs, strict=True)]
+    for counts, final in results:
+        assert counts == alone[0]
+        assert final == alone[1]
+
+
+def test_a_replay_in_processes_beside_one_in_one_process_gives_its_outputs_alone(tmp_path):
+    alone = _outputs(_start(tmp_path / "alone", "--rate", RATE), tmp_path / "alone")
+    procs = [_start(tmp_path / "p", "--rate", RATE, "--processes"), _start(tmp_path / "o", "--rate", RATE)]
+    for proc, out in zip(procs, (tmp_path / "p", tmp_path / "o"), strict=True):
+        assert _outputs(proc, out) == alone
+    summary = json.loads((tmp_path / "p" / "summary.json").read_text())
+    assert summary["isolated"] is True and summary["live"] is False
+    assert summary["ros_domain_id"] != int(os.environ["ROS_DOMAIN_ID"])
+
+
+def test_claimed_domains_differ_and_skip_a_domain_in_use_on_the_host(rclpy_context):
+    import rclpy
+
+    from train_calib.isolation import claim_domain, domain_in_use_on_host, isolated_environment
+
+    own = int(os.environ["ROS_DOMAIN_ID"])  # this test run's (conftest), a context of it is up
+    node = rclpy.create_node("holder", context=rclpy_context)
+    try:
+        assert domain_in_use_on_host(own)
+        with claim_domain() as first, claim_domain() as second:
+            assert len({first.domain_id, second.domain_id, own}) == 3
+            assert not domain_in_use_on_host(first.domain_id)
+        env = isolated_environment(first.domain_id)
+        assert env["ROS_DOMAIN_ID"] == str(first.domain_id) and env["ROS_AUTOMATIC_DISCOVERY_RANGE"] == "LOCALHOST"
+    finally:
+        node.destroy_node()
+
+
+def test_waiting_for_subscribers_in_an_isolated_replay_is_refused_in_one_line(tmp_path, capsys):
+    from train_calib import cli
+
+    argv = [*COMMAND, "--out", str(tmp_path / "o"), "--wait-for-subscribers", "1"]
+    assert cli.main(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "wait_for_subscribers" in err[0] and "--live" in err[0], err
+    assert not (tmp_path / "o" / "output.mcap").exists()
