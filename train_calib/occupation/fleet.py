@@ -268,20 +268,15 @@ def _simulate_one(job) -> FleetRun:
     return FleetRun(run_id, composition, events, truth)
 
 
-def simulate_fleet(
+def fleet_jobs(
     track: Track,
     types: TrainTypes,
     config: FleetConfig | None = None,
     *,
     seed: int = 0,
     compositions: Sequence[str] | None = None,
-    workers: int = 1,
-    progress: Callable[[int, int], None] | None = None,
-) -> list[FleetRun]:
-    """Simulate ``runs_per_composition`` runs of each composition from the first to the last station.
-
-    Reproducible for a given seed whatever ``workers`` is (one seed per run, spawned in order).
-    """
+) -> list[tuple]:
+    """The runs of :func:`simulate_fleet`, one job each (``simulate_run_job(job)`` simulates one), in order."""
     cfg = config or FleetConfig()
     names = list(compositions) if compositions is not None else types.names
     jobs = []
@@ -300,6 +295,29 @@ def simulate_fleet(
                 (track, name, comp.train_file, comp.length_m, comp.defaults["b_stop"], seeds[k], i, cfg, hindrance)
             )
             k += 1
+    return jobs
+
+
+def simulate_run_job(job: tuple) -> FleetRun:
+    """One run of :func:`fleet_jobs`."""
+    return _simulate_one(job)
+
+
+def simulate_fleet(
+    track: Track,
+    types: TrainTypes,
+    config: FleetConfig | None = None,
+    *,
+    seed: int = 0,
+    compositions: Sequence[str] | None = None,
+    workers: int = 1,
+    progress: Callable[[int, int], None] | None = None,
+) -> list[FleetRun]:
+    """Simulate ``runs_per_composition`` runs of each composition from the first to the last station.
+
+    Reproducible for a given seed whatever ``workers`` is (one seed per run, spawned in order).
+    """
+    jobs = fleet_jobs(track, types, config, seed=seed, compositions=compositions)
     out: list[FleetRun] = []
     if workers > 1:
         with ProcessPoolExecutor(max_workers=workers) as pool:

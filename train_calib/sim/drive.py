@@ -33,6 +33,7 @@ from .phases import Brake, Coast, Hold, Phase, Ramp, Stand, StopBrake, Traction
 
 _V_STOPPED = 0.01  # m/s: below this the stop brake is finished in closed form
 _MAX_STEP = 120.0  # s
+MAX_BAND_SHARE = 0.5  # a cycle's coast goes at most this share of the ceiling below it
 _RTOL = 1e-8
 
 
@@ -150,6 +151,12 @@ class Drive:
             return Ramp(self.model, t, self.driver.reaccel_ramp_s, u0, fraction)
         return Traction(self.model, fraction)
 
+    def band_floor(self, c: float) -> float:
+        """Where a cycle's coast below the ceiling `c` ends (m/s): the band below it, at most half of `c`. A band
+        wider than the ceiling (6-15 km/h under a 10 km/h crawl to a signal) would coast the train to a stand
+        and backwards."""
+        return c - min(self.band, MAX_BAND_SHARE * c)
+
     def cycle_fraction(self, t: float, s: float, v: float) -> float:
         """Fraction of the envelope for a cycle's re-acceleration: the driver's, raised (up to the full envelope)
         so that the net acceleration where it starts is at least ``cycle_min_accel``."""
@@ -202,7 +209,7 @@ class Drive:
         elif isinstance(ph, Coast):
             if v > c + 1e-9:
                 return Hold(m)
-            if not ph.final and v <= c - self.band:
+            if not ph.final and v <= self.band_floor(c):
                 return self.reaccel(t, 0.0, self.cycle_fraction(t, s, v))
             if ph.final and v < self.min_coast:
                 self.creep = True
@@ -244,8 +251,8 @@ class Drive:
                 if self.min_coast > 0:
                     ev.append(Event(lambda _t, _s, v: self.min_coast - v, "min_speed"))
             else:
-                band = self.band
-                ev.append(Event(lambda _t, _s, v: c - band - v, "band_low"))
+                floor = self.band_floor(c)
+                ev.append(Event(lambda _t, _s, v: floor - v, "band_low"))
         return ev
 
     def transition(self, ph: Phase, tag, t: float, s: float, v: float) -> Phase:
