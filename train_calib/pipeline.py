@@ -38,6 +38,7 @@ from .measurement import Measurement, MeasurementSeries
 from .track import Track
 from .train import Davis, TrainSpec
 from .window import WindowCalibrator, WindowConfig, WindowFit
+from .window.pooled import pooled_summary
 
 
 @dataclass
@@ -162,6 +163,12 @@ class PipelineOutput:
     @property
     def final(self) -> EstimateSample | None:
         return self.estimates[-1] if self.estimates else None
+
+    @property
+    def window_pooled(self) -> dict[str, object] | None:
+        """The last window's pooled r(v) as summary.json's ``window.pooled`` (None without windows)."""
+        return pooled_summary(self.windows[-1].pooled, self.windows[-1].pooled_covariance,
+                              self.windows[-1].pooled_windows) if self.windows else None  # fmt: skip
 
 
 class Pipeline:

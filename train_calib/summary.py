@@ -25,6 +25,7 @@ from .physics import KMH, davis
 from .regime_codes import REGIME_NAMES, regime_name
 from .train import TrainSpec
 from .window import GOF_KINDS, WindowFit, summarize_by_regime
+from .window.pooled import pooled_summary
 
 RESISTANCE = "/train_calib/resistance"
 MEASUREMENT = "/train_calib/measurement"
@@ -95,6 +96,7 @@ def read_outputs(bag: str | Path) -> Outputs:
         elif m.topic == WINDOW:
             out.window_count += 1
             fit = window_fit_from_msg(msg)
+            window_pooled_from_msg(fit, msg)
             out.windows.append(fit)
             if not fit.ill_posed:
                 out.window = {name: _plain(getattr(fit, name)) for name in WINDOW_FIELDS if name != "ill_posed"}
@@ -150,6 +152,24 @@ def window_fit_from_msg(msg: Any) -> WindowFit:
     if not values["ill_posed"]:
         values["estimate"] = (values["r0"], values["r1"], values["r2"])
     return WindowFit(stamp_ns=stamp_ns(msg.header), **values)
+
+
+def window_pooled_from_msg(fit: WindowFit, msg: Any) -> None:
+    """The window's resistance at its mean speed and the pooled r(v) of a WindowResistance message into its WindowFit
+    (NaN / 0 windows from bags recorded before the fields)."""
+    nan = math.nan
+    fit.resistance_speed = float(getattr(msg, "mean_speed", nan))
+    fit.resistance_at_speed = float(getattr(msg, "resistance_at_mean_speed", nan))
+    fit.resistance_at_speed_std = float(getattr(msg, "resistance_at_mean_speed_std", nan))
+    fit.pooled = tuple(float(getattr(msg, f"pooled_{c}", nan)) for c in COEFFS)  # type: ignore[assignment]
+    fit.pooled_covariance = tuple(float(x) for x in getattr(msg, "pooled_covariance", ()))
+    fit.pooled_windows = int(getattr(msg, "pooled_windows", 0))
+
+
+def window_pooled(fit: WindowFit) -> dict[str, Any] | None:
+    """summary.json's ``window.pooled``: the run's windows pooled into r(v) as the last window carries it,
+    {"r0", "r1", "r2" (N/kg units), "covariance" (3x3), "windows"}; None when it carries none."""
+    return pooled_summary(fit.pooled, fit.pooled_covariance, fit.pooled_windows)
 
 
 def window_summary(
@@ -308,6 +328,7 @@ def summarize(
         summary["runs"] = []
     if outputs.windows:
         summary["window"] = window_summary(outputs.windows, train, truth)
+        summary["window"]["pooled"] = window_pooled(outputs.windows[-1])
     summary["regime_share"] = regime_shares(outputs.features)
     summary["dropped"] = dropped_counts(outputs)
     summary["dropped_total"] = sum(n for t in summary["dropped"].values() for r in t.values() for n in r.values())

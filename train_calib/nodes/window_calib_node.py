@@ -7,8 +7,10 @@ later stamp shows that it will not come, or for at most ``max_regime_wait`` samp
 with the regime from the power (their Section 5.1), as with ``regime_source`` power. The node is
 active only when the measurements carry traction power (``power_valid``, paired by gnss_speed_node
 from /train/traction_power): one WindowResistance per such measurement, with ``ill_posed`` set and
-the last well-posed A, B, C when the window cannot separate them. Parameter changes restart the
-window (the published values are kept).
+the last well-posed A, B, C when the window cannot separate them. Every message also carries the window's
+resistance at its mean speed with its sigma (well posed whenever the train moves under measured power) and the
+windows so far pooled into r(v) with its 3x3 covariance (``pooled_*``, train_calib.window.pooled). Parameter
+changes restart the window (the published values and the pooled r(v) are kept).
 """
 
 from __future__ import annotations
@@ -31,12 +33,13 @@ from .config import MEASUREMENT_TOPIC, REGIME_TOPIC, WINDOW_TOPIC, TrainFile
 from .convert import measurement_from_msg, message_with_header, stamp_to_ns, to_cdr
 
 _WINDOW_LAYOUT = layout(WindowResistance)
+_NAN9 = (math.nan,) * 9  # pooled_covariance of a WindowFit that carries none
 DROP_REASONS = ("out_of_order", "non_finite")
 """Calibrator counts that are dropped samples (the others are outcomes, reported as values)."""
 
 
 def _window_values(fit: WindowFit) -> tuple:
-    """The WindowResistance fields after the header, in message order and field types."""
+    """The WindowResistance fields after the header, in message order and field types (pooled_covariance a list)."""
     return (
         int(fit.run_id),
         float(fit.window_length),
@@ -52,6 +55,12 @@ def _window_values(fit: WindowFit) -> tuple:
         int(fit.regime),
         bool(fit.ill_posed),
         float(fit.speed_span),
+        float(fit.resistance_speed),
+        float(fit.resistance_at_speed),
+        float(fit.resistance_at_speed_std),
+        *(float(x) for x in fit.pooled),
+        list(fit.pooled_covariance or _NAN9),  # row-major 3x3 -> 9
+        int(fit.pooled_windows),
     )
 
 
@@ -62,7 +71,8 @@ def window_to_msg(fit: WindowFit, frame_id: str = "") -> WindowResistance:
 
 def window_to_cdr(fit: WindowFit, frame_id: str = "") -> bytes:
     """The serialized WindowResistance (plain CDR, what rclpy would publish for window_to_msg)."""
-    return to_cdr(_WINDOW_LAYOUT, fit.stamp_ns, frame_id, _window_values(fit))
+    *head, covariance, windows = _window_values(fit)
+    return to_cdr(_WINDOW_LAYOUT, fit.stamp_ns, frame_id, (*head, *covariance, windows))
 
 
 class WindowCalibNode(TrainCalibNode):
@@ -178,6 +188,12 @@ class WindowCalibNode(TrainCalibNode):
                 ("last window regime", regime_name(f.regime)),
                 ("last window GoF (N)", _g(f.gof_value)),
                 ("last window ill posed", f.reason or "no"),
+                (
+                    "last window r(mean speed) (N/kg)",
+                    f"{_g(f.resistance_at_speed)} +- {_g(f.resistance_at_speed_std)} at {_g(f.resistance_speed)} m/s",
+                ),
+                ("pooled r0 r1 r2 (N/kg)", " ".join(_g(x) for x in f.pooled)),
+                ("pooled windows", f.pooled_windows),
             ]
         return out
 

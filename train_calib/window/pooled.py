@@ -246,3 +246,16 @@ class PooledResistance:
         value = basis @ self.estimate
         sigma = np.sqrt(np.einsum("...i,ij,...j->...", basis, self.covariance, basis))
         return value, sigma
+
+
+def pooled_summary(
+    r: tuple[float, float, float], covariance: tuple[float, ...] | np.ndarray, windows: int
+) -> dict[str, object] | None:
+    """summary.json's ``window.pooled``: {"r0", "r1", "r2" (N/kg units), "covariance" (3 x 3 nested lists),
+    "windows"}; None when r is not finite (a WindowFit or message that carries no pooled r(v))."""
+    values = [float(x) for x in r]
+    cov = np.asarray(covariance, dtype=float)
+    if len(values) != 3 or cov.size != 9 or not all(math.isfinite(x) for x in values):
+        return None
+    return {"r0": values[0], "r1": values[1], "r2": values[2], "covariance": cov.reshape(3, 3).tolist(),
+            "windows": int(windows)}  # fmt: skip
