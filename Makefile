@@ -3,6 +3,7 @@
 #   make demo    create .venv, install, build the messages, replay the bundled bag, print the result
 #   make test    the same set-up, then the whole test suite
 #   make bench   benchmarks (bench/), results in bench/RESULTS.md; never part of make test
+#   make validate  validation family + external runs scored (bench/validation/), PRESET=name for a preset
 #   make lint    ruff
 #   make clean   remove .venv and build/
 #
@@ -31,10 +32,10 @@ REQUIREMENTS := requirements/ros.txt requirements/python.txt requirements/constr
 export ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST
 export PYTHONDONTWRITEBYTECODE := 1
 
-.PHONY: help setup demo test bench lint clean freeze
+.PHONY: help setup demo test bench validate lint clean freeze
 
 help:
-	@sed -n '2,9p' Makefile | sed 's/^# \{0,1\}//'
+	@sed -n '2,10p' Makefile | sed 's/^# \{0,1\}//'
 
 $(VPY):
 	$(PYTHON) -m venv $(VENV)
@@ -78,6 +79,13 @@ test: $(STAMP_PKG)
 
 bench: $(STAMP_PKG)
 	$(VPY) bench/run_all.py
+
+# The estimator's validation family (generated into build/validation/ when missing) and the external runs,
+# scored with the plain UKFConfig() or `make validate PRESET=converging` (bench/validation/README.md).
+PRESET ?=
+validate: $(STAMP_PKG)
+	$(VPY) bench/validation/family.py
+	$(VPY) bench/validation/score.py $(if $(PRESET),--preset $(PRESET))
 
 lint: $(STAMP_PKG)
 	$(VENV)/bin/ruff check train_calib test bench launch setup.py
