@@ -7,8 +7,9 @@ Arguments (``name:=value``):
   use_sim_time   true when a bag is played with --clock (default false)
   traction_power true when the train publishes /train/traction_power: starts window_calib_node (default false)
   window         auto (default: as traction_power says), true or false: start window_calib_node or not
-  ukf_preset     paper (default: Table 1, the params file's values) or converging (adds config/ukf_converging.yaml
-                 for ukf_node, after params_file)
+  ukf_preset     learning (default: the params file's values, r learnt from the run's coasting), paper (adds
+                 config/ukf_paper.yaml: Table 1) or converging (adds config/ukf_converging.yaml), for ukf_node,
+                 after params_file
   namespace      namespace of the nodes (default none)
 
 ``describe()`` gives the same graph as plain data without importing ``launch`` (used by the tests).
@@ -33,10 +34,14 @@ ARGUMENTS = {
     "use_sim_time": ("false", "use /clock (bag playback with --clock)"),
     "traction_power": ("false", "the train publishes /train/traction_power: start window_calib_node"),
     "window": ("auto", "start window_calib_node: auto (when traction_power is true), true or false"),
-    "ukf_preset": ("paper", "ukf_node preset: paper (Table 1, the params file) or converging (ukf_converging.yaml)"),
+    "ukf_preset": (
+        "learning",
+        "ukf_node preset: learning (the params file), paper (ukf_paper.yaml: Table 1) or converging "
+        "(ukf_converging.yaml)",
+    ),
     "namespace": ("", "namespace of the nodes"),
 }
-UKF_PRESETS = ("paper", "converging")
+UKF_PRESETS = ("learning", "paper", "converging")
 TRUE = ("true", "1", "yes", "on")
 FALSE = ("false", "0", "no", "off")
 
@@ -82,7 +87,7 @@ def describe(
     window: bool | str | None = None,
     namespace: str = "",
     traction_power: bool | str = False,
-    ukf_preset: str = "paper",
+    ukf_preset: str = "learning",
 ) -> list[dict]:
     """The nodes to start, as plain data: package, executable, name, namespace, parameters (files in order,
     then the overrides). window None / "auto": window_calib_node when traction_power is true."""
@@ -99,7 +104,7 @@ def describe(
             if value:
                 overrides[key] = value
         files = [params_file or default_params_file()]
-        if name == "ukf_node" and ukf_preset != "paper":
+        if name == "ukf_node" and ukf_preset != "learning":
             files.append(config_file(f"ukf_{ukf_preset}.yaml"))
         nodes.append(
             {

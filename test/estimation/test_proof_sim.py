@@ -50,7 +50,7 @@ def test_converging_preset_corrects_a_20_percent_wrong_prior(period, power, boun
         _run, ms, truth, train = simulated_run(k, period, power)
         prior = wrong_prior(truth, k)
         errs.append(r_errors(estimate_run(ms, train, UKFConfig.converging(), initial=prior), truth))
-        paper = estimate_run(ms, train, UKFConfig(), initial=prior).final_davis()
+        paper = estimate_run(ms, train, UKFConfig.paper(), initial=prior).final_davis()
         paper_moves.append(max(abs(a / b - 1.0) for a, b in zip(paper.as_tuple(), prior.as_tuple())))
     errs = np.abs(np.array(errs))
     assert errs[:, 1].max() < bound80 and errs[:, 2].max() < bound120

@@ -275,10 +275,11 @@ def test_config_validation_and_presets():
         UKFConfig(kappa=-4.9, alpha=0.001).replace(kappa=-5.0)
     with pytest.raises(ConfigError, match="preset"):
         UKFConfig.preset("fast")
-    assert UKFConfig.preset("paper") == UKFConfig()
+    assert UKFConfig.preset("learning") == UKFConfig()
+    assert UKFConfig.preset("paper") == UKFConfig(resistance_learning="ukf")
     conv = UKFConfig.converging(accel_noise_std=0.02)
     assert conv.accel_noise_std == 0.02 and conv.effort_mode == "exploit_known"
-    t1 = UKFConfig()
+    t1 = UKFConfig.paper()
     assert (t1.alpha, t1.beta, t1.kappa, t1.init_std_s) == (0.001, 2.0, -2.0, 1.0)
     assert t1.init_std_v == pytest.approx(0.0018 / 3.6) and t1.meas_std_v == pytest.approx(1 / 3.6)
     assert (t1.init_std_r0, t1.init_std_r1, t1.init_std_r2, t1.meas_std_s) == (1e-6, 1e-8, 1e-9, 4.0)

@@ -47,7 +47,7 @@ def test_identical_to_filterpy(name):
     train, _truth, series = synthetic_run(3, 10.0)
     series = type(series)(**{k: v.copy() for k, v in vars(series).items()})
     series.s_measured[30:36] = False  # v-only updates
-    cfg = UKFConfig(**{**UKFConfig().as_dict(), "nonnegative": "clip", **CASES[name]})
+    cfg = UKFConfig(**{**UKFConfig.paper().as_dict(), "nonnegative": "clip", **CASES[name]})
     prior = wrong_prior(train.davis, 2)
     published, est = resistance_run(series, train, cfg, initial=prior)
     xs, ps = run_filterpy(series, est, cfg, prior.as_tuple())
@@ -106,7 +106,7 @@ def test_table1_weights_against_extended_precision():
     itself ~1e-8 off it, which is why the filterpy comparison at 1e-9 uses well-conditioned weights.
     """
     train, _truth, series = synthetic_run(3, 10.0)
-    cfg = UKFConfig(nonnegative="clip")
+    cfg = UKFConfig.paper(nonnegative="clip")
     est = estimate_run(series, train, cfg)
     ref = literal_extended(series, est, cfg, train.davis.as_tuple())
     assert relative(est.state, ref).max() < 1e-9
@@ -118,7 +118,7 @@ def test_table1_weights_against_extended_precision():
 def test_smoother_identical_to_filterpy_rts():
     """smooth_run against filterpy's rts_smoother on the same filtered means/covariances and step inputs."""
     train, _truth, series = synthetic_run(4, 10.0)
-    cfg = UKFConfig(alpha=1.0, kappa=0.0, init_std_r_relative=0.3, accel_noise_std=0.0)
+    cfg = UKFConfig.paper(alpha=1.0, kappa=0.0, init_std_r_relative=0.3, accel_noise_std=0.0)
     est = estimate_run(series, train, cfg)
     smoothed = smooth_run(series, train, cfg, estimates=est)
     n = len(est)

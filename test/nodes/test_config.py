@@ -40,20 +40,20 @@ def test_params_file_is_the_generated_text_with_the_documentation():
     assert "init_std_r0: 1.0e-06" in text  # YAML 1.1 reads 1e-06 as a string
 
 
-def test_converging_params_file_is_the_core_preset():
+@pytest.mark.parametrize("name", ["converging", "paper"])
+def test_preset_params_file_is_the_core_preset(name):
     from train_calib.commands.replay import preset_params_yaml
     from train_calib.nodes.config import ukf_preset_yaml
 
-    path = REPO / "config" / "ukf_converging.yaml"
+    path = REPO / "config" / f"ukf_{name}.yaml"
     text = path.read_text()
-    assert text == ukf_preset_yaml("converging"), "regenerate: python -m train_calib.nodes.config --preset converging"
+    assert text == ukf_preset_yaml(name), f"regenerate: python -m train_calib.nodes.config --preset {name}"
     values = yaml.safe_load(text)["ukf_node"]["ros__parameters"]
-    preset = {k: list(v) if isinstance(v, tuple) else v for k, v in UKFConfig.converging().as_dict().items()}
+    preset = {k: list(v) if isinstance(v, tuple) else v for k, v in UKFConfig.preset(name).as_dict().items()}
     assert values == preset and set(yaml.safe_load(text)) == {"ukf_node"}
-    assert UKFConfig.from_mapping(values, source=str(path)) == UKFConfig.converging()
-    assert "# Why: the defaults (config/train_calib.yaml) are Table 1" in text
-    assert "    alpha: 0.5\n" in text and "(Table 1 / default: 0.001)" in text  # what differs from Table 1 says so
-    assert yaml.safe_load(preset_params_yaml("converging")) == yaml.safe_load(text)  # --ukf-preset converging
+    assert UKFConfig.from_mapping(values, source=str(path)) == UKFConfig.preset(name)
+    assert "resistance_learning: ukf\n" in text and "(default: coast_regression)" in text  # what differs says so
+    assert yaml.safe_load(preset_params_yaml(name)) == yaml.safe_load(text)  # --ukf-preset NAME
 
 
 def test_parameter_names_are_unique_within_each_node():
@@ -97,6 +97,10 @@ def test_launch_file_imports_and_describes_the_graph():
     # ukf_preset: converging adds config/ukf_converging.yaml to ukf_node after the params file
     ukf = next(n for n in launch.describe(ukf_preset="converging") if n["name"] == "ukf_node")
     assert ukf["parameters"][:2] == [str(CONFIG), str(REPO / "config" / "ukf_converging.yaml")]
+    paper = next(n for n in launch.describe(ukf_preset="paper") if n["name"] == "ukf_node")
+    assert paper["parameters"][:2] == [str(CONFIG), str(REPO / "config" / "ukf_paper.yaml")]
+    learning = next(n for n in launch.describe(ukf_preset="learning") if n["name"] == "ukf_node")
+    assert str(learning["parameters"][1]).find("ukf_") < 0  # the defaults: the params file alone
     for bad in ({"window": "maybe"}, {"ukf_preset": "fast"}, {"use_sim_time": "ja"}):
         with pytest.raises(ValueError, match=f"launch argument {next(iter(bad))}: "):
             launch.describe(**bad)

@@ -1,7 +1,9 @@
 """Configuration of the estimator core: UKF, regime recognition and feature extraction (frozen ParamSets).
 
-``UKFConfig()`` is Cunillera et al. (2022), Table 1, with every engineering option off where the paper
-is silent (computed effort on every step, Euler process, no process noise). ``UKFConfig.converging()``
+``UKFConfig()`` (preset ``learning``) is Cunillera et al. (2022), Table 1, for the filter of s and v, with the
+resistance learnt by the coast regression (``resistance_learning``); ``UKFConfig.paper()`` is Table 1 with r in the
+UKF state and every engineering option off where the paper is silent (computed effort on every step, Euler
+process, no process noise). ``UKFConfig.converging()``
 is the measured alternative that converges from a wrong prior (docs/estimator.md, "Presets").
 Units are SI; speeds in m/s (the paper's km/h values are converted in the defaults).
 """
@@ -20,13 +22,14 @@ EFFORT_MODES = ("computed", "exploit_known")
 INTEGRATIONS = ("euler", "midpoint")
 NONNEGATIVE_RULES = ("project", "clip")
 CARRY_OVER = ("reset", "keep")
-PRESETS = ("paper", "converging")
+PRESETS = ("learning", "paper", "converging")
+RESISTANCE_LEARNING = ("coast_regression", "ukf")
 REGIME_METHODS = ("hmm", "rule")
 
 
 @dataclass(frozen=True)
 class UKFConfig(ParamSet):
-    """Resistance UKF over x = (s, v, r0, r1, r2); defaults are the paper's Table 1."""
+    """Resistance UKF over x = (s, v, r0, r1, r2); Table 1 for s and v, r learnt from the coasting by default."""
 
     # -- Table 1 -------------------------------------------------------------------------------
     alpha: float = param(0.001, "van der Merwe sigma-point spread alpha (Table 1)", low=0.0, high=1.0, low_open=True)
@@ -158,6 +161,52 @@ class UKFConfig(ParamSet):
         low=0.0,
         high=600.0,
     )
+    # -- how r is learnt (docs/estimator.md, "Coast regression") ----------------------------------
+    resistance_learning: str = param(
+        "coast_regression",
+        "coast_regression: r from a Bayesian regression over the coasting stretches detected in the data (the UKF "
+        "tracks s and v, r a consider parameter); ukf: r in the UKF state as in the paper (presets paper, converging)",
+        choices=RESISTANCE_LEARNING,
+    )
+    prior_scale_std: float = param(
+        0.18,
+        "coast_regression: prior std of a scale common to r0, r1, r2 (the train file's curve 10-30 % off)",
+        low=0.0,
+        high=5.0,
+    )
+    prior_coefficient_std: float = param(
+        0.10, "coast_regression: prior std of each coefficient on its own, relative", low=0.0, high=5.0
+    )
+    coast_ratio_min: float = param(
+        0.4, "coast_regression: coasting when -(a + g) is at least this fraction of the train file's r(v)", low=0.0
+    )
+    coast_ratio_max: float = param(2.5, "coast_regression: ... and at most this fraction", low=0.0, low_open=True)
+    coast_hold_sigmas: float = param(
+        3.0, "coast_regression: coasting needs |a| at least this many standard errors from 0 (not a hold)", low=0.0
+    )
+    coast_slope_precision: float = param(
+        0.2,
+        "coast_regression: the speed slope's window is long enough for a standard error of this fraction of r",
+        low=0.01,
+        high=10.0,
+    )
+    coast_window_min: float = param(10.0, "coast_regression: shortest slope window", unit="s", low=1.0, high=600.0)
+    coast_window_samples: float = param(
+        4.0, "coast_regression: slope window at least this many sample periods", low=2.0, high=100.0
+    )
+    coast_min_duration: float = param(
+        12.0, "coast_regression: shortest stretch used, after trimming (and at least 3 periods)", unit="s", low=0.0
+    )
+    coast_chunk: float = param(
+        20.0, "coast_regression: one equation per this much of a stretch", unit="s", low=1.0, high=3600.0
+    )
+    coast_stretch_std: float = param(
+        0.05,
+        "coast_regression: std of an error common to a stretch, relative to r (grade, curves, light effort)",
+        low=0.0,
+        high=10.0,
+    )
+    coast_min_speed: float = param(5.0, "coast_regression: no coasting below this speed", unit="m/s", low=0.0)
     # -- safeguards and health -----------------------------------------------------------------
     nonnegative: str = param(
         "project",
@@ -205,9 +254,16 @@ class UKFConfig(ParamSet):
         return self.alpha**2 * (self.STATE_SIZE + self.kappa) - self.STATE_SIZE
 
     @classmethod
-    def paper(cls, **overrides: Any) -> UKFConfig:
-        """Cunillera et al. (2022) Table 1 with computed effort (the defaults)."""
+    def learning(cls, **overrides: Any) -> UKFConfig:
+        """The defaults: Table 1's filter for s and v, r from the coasting stretches (coast regression) with the
+        train file's values as an honest prior (about 19 % std of r(v))."""
         return cls().replace(**overrides) if overrides else cls()
+
+    @classmethod
+    def paper(cls, **overrides: Any) -> UKFConfig:
+        """Cunillera et al. (2022) Table 1 with computed effort: r in the UKF state, which keeps the prior."""
+        base = cls(resistance_learning="ukf")
+        return base.replace(**overrides) if overrides else base
 
     @classmethod
     def converging(cls, **overrides: Any) -> UKFConfig:
@@ -230,12 +286,13 @@ class UKFConfig(ParamSet):
             effort_mode="exploit_known",
             decouple_unknown_effort=True,
             coast_confirm_time=40.0,
+            resistance_learning="ukf",
         )
         return base.replace(**overrides) if overrides else base
 
     @classmethod
     def preset(cls, name: str, **overrides: Any) -> UKFConfig:
-        """A named preset ('paper' or 'converging') with optional overrides."""
+        """A named preset ('learning', 'paper' or 'converging') with optional overrides."""
         if name not in PRESETS:
             raise ConfigError("UKFConfig", "preset", f"{name!r} is not one of {', '.join(PRESETS)}")
         return getattr(cls, name)(**overrides)

@@ -43,6 +43,7 @@ def estimate_run(
         series.power_valid.tolist(),
         series.power_consumed.tolist(),
         series.power_regenerated.tolist(),
+        series.tunnel_fraction.tolist(),
     )
     rows = [None] * n
     process = est._process

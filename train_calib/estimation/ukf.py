@@ -46,6 +46,7 @@ from scipy.stats import chi2
 
 from ..measurement import Measurement
 from ..train import Davis, TrainSpec
+from .coast_regression import CoastRegression, CoastSettings
 from .config import UKFConfig
 from .covariance import cholesky, project_nonnegative, repair, unpack
 from .effort import PowerEffort, SpeedSlope
@@ -151,7 +152,13 @@ class ResistanceEstimator:
         self._beta_alpha = cfg.beta - cfg.alpha**2
         self._midpoint = cfg.integration == "midpoint"
         self._exploit = cfg.effort_mode == "exploit_known"
-        self._decouple = bool(cfg.decouple_unknown_effort)
+        # coast regression: r comes from the coasting stretches, the UKF keeps it as a consider parameter
+        self._coast = (
+            CoastRegression(train, CoastSettings.from_config(cfg), self.prior)
+            if cfg.resistance_learning == "coast_regression"
+            else None
+        )
+        self._decouple = bool(cfg.decouple_unknown_effort) or self._coast is not None
         self._use_q_gain = bool(cfg.update_uses_process_noise)
         self._qa = cfg.accel_noise_std**2
         self._qr = (cfg.noise_r0**2, cfg.noise_r1**2, cfg.noise_r2**2)
@@ -228,11 +235,19 @@ class ResistanceEstimator:
         x = self._rf.x if self._rf.x is not None else [0.0, 0.0, *self.prior.as_tuple()]
         return Davis(x[2], x[3], x[4])
 
+    @property
+    def coast_regression(self) -> CoastRegression | None:
+        """The coast regression that learns r (``resistance_learning: coast_regression``), else None."""
+        return self._coast
+
     def reset(self, keep_resistance: bool = False) -> None:
         """Forget the run: the next measurement re-initialises s and v; r (and its covariance) are kept
         when ``keep_resistance`` (times ``carry_over_inflation``), else taken from the prior. Measurements
-        still waiting for the resistance filter are used first (``flush``)."""
+        still waiting for the resistance filter are used first (``flush``). With the coast regression, r is
+        the regression's, which keeps what it learnt unless ``keep_resistance`` is false."""
         self.flush()
+        if self._coast is not None and not keep_resistance:
+            self._coast.reset()
         self._keep_next = bool(keep_resistance) and self._h.x is not None
         if not self._keep_next:
             self._h.x = None
@@ -274,6 +289,7 @@ class ResistanceEstimator:
             bool(m.power_valid),
             float(m.power_consumed),
             float(m.power_regenerated),
+            float(m.tunnel_fraction),
         )
         s, v, r0, r1, r2, effort, accel, resistance, g, nis, source, health, dt, u_in, _ = out
         return EstimateSample(
@@ -344,7 +360,12 @@ class ResistanceEstimator:
         """Restart filter f at the measurement; keep: r and its covariance block (times inflation) from the
         resistance filter when they are finite and r >= 0, else (or if that is not positive definite) the prior."""
         src = self._rf
-        if keep and src.x is not None and all(math.isfinite(xi) and xi >= 0.0 for xi in src.x[2:]):
+        if self._coast is not None:  # r and its covariance are the regression's
+            r = (float(self._coast.r[0]), float(self._coast.r[1]), float(self._coast.r[2]))
+            p = self._initial_cov(r)
+            c = self._coast.covariance
+            p[9:15] = [float(c[i, j]) for i, j in ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))]
+        elif keep and src.x is not None and all(math.isfinite(xi) and xi >= 0.0 for xi in src.x[2:]):
             r = (src.x[2], src.x[3], src.x[4])
             old = src.P
             p = self._initial_cov(r)
@@ -357,6 +378,19 @@ class ResistanceEstimator:
         if self._set_cov(f, tuple(p)) != HEALTH_OK:
             f.x[2:] = list(self._prior_r)
             self._set_cov(f, tuple(self._initial_cov(self._prior_r)))
+
+    def _take_coast_resistance(self) -> None:
+        """Both filters take the coast regression's r and r covariance (no cross-covariance with s, v)."""
+        r, c = self._coast.r, self._coast.covariance
+        for f in (self._h, self._rf) if self._split else (self._h,):
+            if f.x is None:
+                continue
+            f.x[2], f.x[3], f.x[4] = float(r[0]), float(r[1]), float(r[2])
+            p = list(f.P)
+            p[2] = p[3] = p[4] = p[6] = p[7] = p[8] = 0.0
+            p[9], p[10], p[11] = float(c[0, 0]), float(c[0, 1]), float(c[0, 2])
+            p[12], p[13], p[14] = float(c[1, 1]), float(c[1, 2]), float(c[2, 2])
+            self._set_cov(f, tuple(p))
 
     def _set_cov(self, f: _Filter, p: tuple[float, ...]) -> int:
         """Store P and its factor; repair when not positive definite. Returns a health flag."""
@@ -420,6 +454,7 @@ class ResistanceEstimator:
         power_valid: bool,
         power_consumed: float,
         power_regen: float,
+        tunnel_fraction: float = 0.0,
     ) -> tuple:
         cfg = self.config
         counters = self.counters
@@ -450,6 +485,8 @@ class ResistanceEstimator:
         if power_valid and not (0.0 <= power_consumed <= MAX_POWER and 0.0 <= power_regen <= MAX_POWER):
             counters["input_repaired"] += 1  # power that is not a power is no power measurement
             power_valid, power_consumed, power_regen = False, 0.0, 0.0
+        if self._coast is not None and self._coast.push(stamp_ns * 1e-9, zv, g, tunnel_fraction, run_id):
+            self._take_coast_resistance()
         # ---- run start / gap --------------------------------------------------------------------
         if h.x is None or run_id != self._run_id:
             keep = h.x is not None and (self._keep_next or cfg.carry_over == "keep")

@@ -1,0 +1,183 @@
+"""Coast regression (estimation/coast_regression.py): detection, posterior, causal form, UKF integration.
+
+Truth comes from the tests' own generator (synthetic.py: RK4 of a scripted driver), not the product simulator.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from synthetic import Script, make_run
+
+from train_calib.estimation import UKFConfig, estimate_run
+from train_calib.estimation.coast_regression import (
+    CoastRegression,
+    CoastSettings,
+    RunArrays,
+    fit_coasts,
+    posterior,
+    prior_covariance,
+    speed_noise,
+)
+from train_calib.physics import KMH
+from train_calib.train import Davis
+
+V_REF = 80 * KMH
+H_REF = np.array([1.0, V_REF, V_REF**2])
+
+
+def scaled(d: Davis, factors) -> Davis:
+    return Davis(*(np.array(d.as_tuple()) * np.asarray(factors, dtype=float)))
+
+
+def run_with_truth(train, factors, period: float, seed: int = 0, script: Script | None = None):
+    truth = scaled(train.davis, factors)
+    _, _, series = make_run(seed=seed, period=period, resistance=truth, train=train, script=script)
+    return truth, series
+
+
+def rel_error(r: np.ndarray, truth: Davis) -> float:
+    t = H_REF @ np.array(truth.as_tuple())
+    return float((H_REF @ r - t) / t)
+
+
+def rel_sigma(cov: np.ndarray, truth: Davis) -> float:
+    return float(np.sqrt(H_REF @ cov @ H_REF) / (H_REF @ np.array(truth.as_tuple())))
+
+
+def test_prior_covariance_says_about_19_percent_of_r(train):
+    """The default prior: r(80 km/h) std 15-25 % (a train file 10-30 % off lies inside 2 sigma); positive definite
+    also with a zero coefficient."""
+    p0 = prior_covariance(train.davis, 0.18, 0.10)
+    rel = np.sqrt(H_REF @ p0 @ H_REF) / (H_REF @ np.array(train.davis.as_tuple()))
+    assert 0.15 < rel < 0.25
+    assert np.all(np.linalg.eigvalsh(prior_covariance((0.01, 0.0, 1e-5), 0.18, 0.10)) > 0.0)
+
+
+def test_posterior_equals_stacked_least_squares(train):
+    """The information-form posterior equals an independent solution: whitened prior and equation rows stacked
+    into one ordinary least-squares problem (numpy lstsq), mean and covariance."""
+    _, series = run_with_truth(train, (0.8, 0.8, 0.8), 1.0)
+    fit = fit_coasts(RunArrays.from_series(series), train)
+    assert fit.stretches, "the scripted run has a final coast"
+    prior = np.array(train.davis.as_tuple())
+    p0 = prior_covariance(prior, 0.18, 0.10)
+    # all equations at once: their full covariance (speed noise per stretch, the bias shared within a coast)
+    h = np.vstack([st.H for st in fit.stretches])
+    y = np.concatenate([st.y for st in fit.stretches])
+    owner = np.concatenate([[i] * st.y.size for i, st in enumerate(fit.stretches)])
+    groups = np.array([fit.stretches[i].group for i in owner])
+    bias = {g: max(st.bias_std for st in fit.stretches if st.group == g) for g in set(groups)}
+    r_full = np.where(groups[:, None] == groups[None, :], np.array([bias[g] ** 2 for g in groups])[:, None], 0.0)
+    k = 0
+    for st in fit.stretches:
+        r_full[k : k + st.y.size, k : k + st.y.size] += st.R
+        k += st.y.size
+    w0 = np.linalg.cholesky(np.linalg.inv(p0)).T  # W0^T W0 = P0^-1
+    w = np.linalg.cholesky(np.linalg.inv(r_full)).T
+    a = np.vstack([w0, w @ h])
+    b = np.concatenate([w0 @ prior, w @ y])
+    mean, *_ = np.linalg.lstsq(a, b, rcond=None)
+    cov = np.linalg.inv(a.T @ a)
+    m, c = posterior(prior, p0, fit.stretches)
+    np.testing.assert_allclose(m, mean, rtol=1e-9)
+    np.testing.assert_allclose(c, cov, rtol=1e-8)
+
+
+@pytest.mark.parametrize("period", [1.0, 10.0])
+@pytest.mark.parametrize("factors", [(0.75, 0.8, 0.75), (1.25, 1.2, 1.3)])
+def test_whole_run_recovers_truth_from_a_wrong_train_file(train, period, factors):
+    """Truth 20-30 % off the train file, either way (the detection must not favour the prior): r(80 km/h) within
+    5 % (the final coast from 130 to 80 km/h; oracle-level data), truth inside 2 sigma, moved toward the truth."""
+    truth, series = run_with_truth(train, factors, period)
+    fit = fit_coasts(RunArrays.from_series(series), train)
+    err = rel_error(fit.r, truth)
+    prior_err = rel_error(np.array(train.davis.as_tuple()), truth)
+    assert len(fit.stretches) >= 1
+    assert abs(err) < 0.05, (err, prior_err)
+    assert abs(err) <= 2.0 * rel_sigma(fit.covariance, truth)
+    assert abs(err) < abs(prior_err)
+
+
+def test_no_coasting_keeps_prior_and_its_covariance(train):
+    """A run that never coasts (held speed, then braking straight from the cruise speed) on a downhill where a
+    hold's apparent resistance lies inside the band: no stretch, the prior and its covariance exactly."""
+    script = Script(
+        cruise_time=600.0,
+        coast_until_speed=130 * KMH,  # brake at once after the cruise
+        gradient_permille=((0.0, 0.0), (4000.0, -2.5)),
+    )
+    _, series = run_with_truth(train, (0.8, 0.8, 0.8), 1.0, script=script)
+    fit = fit_coasts(RunArrays.from_series(series), train)
+    assert fit.stretches == []
+    np.testing.assert_array_equal(fit.r, np.array(train.davis.as_tuple()))
+    np.testing.assert_array_equal(fit.covariance, prior_covariance(train.davis, 0.18, 0.10))
+
+
+def test_speed_noise_from_the_data():
+    """1 km/h quantisation alone gives about q / sqrt(12); Gaussian noise of 0.2 m/s its own std (within 15 %)."""
+    rng = np.random.default_rng(3)
+    v = 30.0 - 0.02 * np.arange(2000.0)
+    assert speed_noise(np.round(v / KMH) * KMH) == pytest.approx(KMH / np.sqrt(12.0), rel=0.15)
+    assert speed_noise(v + rng.normal(0.0, 0.2, v.size)) == pytest.approx(0.2, rel=0.15)
+
+
+@pytest.mark.parametrize("period", [1.0, 10.0])
+def test_causal_ends_where_the_whole_run_estimate_is(train, period):
+    """Pushed sample by sample, the regression has used the coast by the end of the run (it is over): r(80 km/h)
+    within 5 % of the truth and the truth inside 2 sigma. (Its running speed-noise estimate and slope window differ
+    from the whole run's, so the coast may be cut into other stretches: measured 2-3 % apart on these runs.)"""
+    truth, series = run_with_truth(train, (0.8, 0.85, 0.8), period)
+    arr = RunArrays.from_series(series)
+    fit = fit_coasts(arr, train)
+    online = CoastRegression(train, CoastSettings())
+    changed = [online.push(*args) for args in zip(arr.t, arr.v, arr.g, arr.tunnel, arr.run)]
+    assert any(changed)
+    assert len(online.stretches) >= len(fit.stretches) >= 1
+    assert abs(rel_error(online.r, truth)) < 0.05
+    assert abs(rel_error(online.r, truth)) <= 2.0 * rel_sigma(online.covariance, truth)
+
+
+def test_causal_never_uses_the_future(train):
+    """r moves only when a stretch is over: every stretch it adds ended at least W/2 + trim (= W) before the
+    sample at which it was added; before the first, r is the prior."""
+    _, series = run_with_truth(train, (0.8, 0.8, 0.8), 1.0)
+    arr = RunArrays.from_series(series)
+    online = CoastRegression(train, CoastSettings())
+    used = 0
+    for args in zip(arr.t, arr.v, arr.g, arr.tunnel, arr.run):
+        if online.push(*args):
+            for st in online.stretches[used:]:
+                assert st.t_end + online.window <= args[0] + 1e-9
+            used = len(online.stretches)
+        elif used == 0:
+            np.testing.assert_array_equal(online.r, np.array(train.davis.as_tuple()))
+    assert used >= 1
+
+
+def test_ukf_publishes_the_regression_at_the_defaults(train):
+    """UKFConfig() learns r by the coast regression: the last estimate carries its r and r covariance (no cross
+    terms with s, v); the paper preset stays at the train file's values with Table 1's tiny covariance."""
+    truth, series = run_with_truth(train, (0.8, 0.8, 0.8), 1.0)
+    arr = RunArrays.from_series(series)
+    est = estimate_run(series, train, UKFConfig())
+    online = CoastRegression(train, CoastSettings.from_config(UKFConfig()))
+    for args in zip(arr.t + series.stamp_ns[0] * 1e-9, arr.v, arr.g, arr.tunnel, arr.run):
+        online.push(*args)
+    r = np.array([est.r0[-1], est.r1[-1], est.r2[-1]])
+    np.testing.assert_allclose(r, online.r, rtol=1e-12)
+    np.testing.assert_allclose(est.covariance[-1][2:, 2:], online.covariance, rtol=1e-12)
+    assert np.all(est.covariance[-1][:2, 2:] == 0.0)
+    assert abs(rel_error(r, truth)) < 0.05
+    paper = estimate_run(series, train, UKFConfig.paper())
+    assert abs(paper.r0[-1] / train.davis.r0 - 1.0) < 1e-3
+    assert rel_sigma(paper.covariance[-1][2:, 2:], truth) < 1e-3
+
+
+def test_settings_follow_the_config():
+    cfg = UKFConfig(coast_stretch_std=0.2, prior_scale_std=0.3)
+    s = CoastSettings.from_config(cfg)
+    assert (s.coast_stretch_std, s.prior_scale_std) == (0.2, 0.3)
+    assert replace(s, coast_chunk=5.0).coast_chunk == 5.0

@@ -1,0 +1,506 @@
+"""Running resistance from the coasting stretches of a run: detection from the data, Bayesian regression.
+
+Without traction power only coasting (u = 0) tells r: there a = -(r(v) + g(s)). The method (docs/estimator.md,
+"Coast regression"):
+
+1. **Speed noise** sigma_v from the data: the robust spread of second differences of the measured speed (MAD),
+   at least the resolution's q / sqrt(12).
+2. **Local slope** a_i of the measured speeds, a centred linear fit over a window W chosen so that its standard
+   error is ``coast_slope_precision`` of r (longer with noisier or sparser speeds), at least
+   ``coast_window_min`` and ``coast_window_samples`` sample periods.
+3. **Coasting candidates**: the apparent resistance -(a_i + g_i) lies within ``coast_ratio_min`` ..
+   ``coast_ratio_max`` of the train file's r(v) (wide: a prior 10-30 % off must not select the samples that agree
+   with it), and |a_i| is at least ``coast_hold_sigmas`` standard errors from 0 (a held speed, a = 0, is a hold
+   or says nothing). Traction and braking give an apparent r far outside the band.
+4. **Stretches**: runs of candidate steps, trimmed by W/2 at each end (the centred window smears a phase change
+   over W/2), at least ``coast_min_duration``.
+5. **Equations**, one per chunk of ``coast_chunk`` s inside a stretch, integrated (no differentiation of the
+   speed): -(v_end - v_start)/T - mean(g) = r0 + r1 mean(v) + r2 mean(v^2 (1 + f_tun tunnel)), noise
+   2 sigma_v^2 / T^2 (chunks sharing an end point are correlated), plus a bias common to a coast with std
+   ``coast_stretch_std`` of r (grade and curve errors, a light traction or brake inside it): a coast counts as
+   one piece of evidence, not as its number of samples (stretches less than 2 W apart are one coast).
+6. **Bayesian regression** from the prior N(train file, P0), P0 = s_c^2 r r^T + diag((s_j r_j)^2): a common scale
+   (the whole curve 10-30 % off, ``prior_scale_std``) and per-coefficient jitter (``prior_coefficient_std``).
+   Where no stretch is found the answer is the prior with the prior's covariance.
+
+:func:`fit_coasts` is the whole-run (offline) estimate; :class:`CoastRegression` the causal one used by the UKF
+(``resistance_learning: coast_regression``): it re-detects on the samples since the last completed stretch and
+adds a stretch once it is over (its end W/2 + trim in the past), so the published r moves at the end of each
+coast. Knowledge carries over across stops (run_id changes) within one recording.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..train import Davis, TrainSpec
+
+_MIN_SPEED_NOISE = 0.002  # m/s: floor of the estimated speed noise
+_SHAPE_SPEED = 20.0  # m/s: speed at which a zero coefficient's floor std is set
+
+
+@dataclass(frozen=True)
+class CoastSettings:
+    """The coast regression's settings (UKFConfig fields of the same names; units in UKFConfig)."""
+
+    prior_scale_std: float = 0.18
+    prior_coefficient_std: float = 0.10
+    coast_ratio_min: float = 0.4
+    coast_ratio_max: float = 2.5
+    coast_hold_sigmas: float = 3.0
+    coast_slope_precision: float = 0.2
+    coast_window_min: float = 10.0
+    coast_window_samples: float = 4.0
+    coast_min_duration: float = 12.0
+    coast_chunk: float = 20.0
+    coast_stretch_std: float = 0.05
+    coast_min_speed: float = 5.0
+    max_gap: float = 30.0
+
+    @classmethod
+    def from_config(cls, config) -> CoastSettings:
+        """From a UKFConfig (or anything with the same attribute names)."""
+        names = [f for f in cls.__dataclass_fields__ if f != "max_gap"]
+        return cls(**{n: float(getattr(config, n)) for n in names})
+
+
+def prior_covariance(davis: Davis | tuple[float, float, float], scale_std: float, coefficient_std: float) -> np.ndarray:
+    """P0 (3x3, units of r0, r1, r2) = scale_std^2 r r^T + diag(max(coefficient_std |r_j|, floor_j)^2); the floor
+    (5 % of r at 20 m/s in each term) keeps a zero coefficient from being certain."""
+    r = np.asarray(davis.as_tuple() if isinstance(davis, Davis) else davis, dtype=float)
+    vc = _SHAPE_SPEED
+    r_c = r[0] + r[1] * vc + r[2] * vc * vc
+    floor = 0.05 * abs(r_c) / vc ** np.arange(3)
+    return scale_std**2 * np.outer(r, r) + np.diag(np.maximum(coefficient_std * np.abs(r), floor) ** 2)
+
+
+def davis_value(r: np.ndarray | tuple[float, float, float], v: float | np.ndarray) -> float | np.ndarray:
+    """r0 + r1 v + r2 v^2 (N/kg)."""
+    return r[0] + (r[1] + r[2] * v) * v
+
+
+def speed_noise(v: np.ndarray) -> float:
+    """Std of the speed measurement noise (m/s) from the data: MAD of second differences while moving (> 5 m/s),
+    at least the resolution (smallest step between values) / sqrt(12)."""
+    if v.size < 3:
+        return 0.08
+    dv = np.abs(np.diff(v))
+    steps = dv[dv > 1e-4]
+    quantum = float(np.min(steps)) if steps.size else 0.0
+    moving = v[1:-1] > 5.0
+    d2 = (v[2:] - 2.0 * v[1:-1] + v[:-2])[moving]
+    robust = float(np.median(np.abs(d2))) / 0.6745 / math.sqrt(6.0) if d2.size else 0.0
+    return max(robust, quantum / math.sqrt(12.0), _MIN_SPEED_NOISE)
+
+
+def local_slopes(
+    t: np.ndarray, v: np.ndarray, run: np.ndarray, window: float, period: float = 0.0
+) -> tuple[np.ndarray, np.ndarray]:
+    """Centred least-squares slope of v over [t - W/2, t + W/2] within the same run (m/s^2), and 1/sqrt(Sxx) (the
+    slope's standard error per unit of speed noise); NaN where the window holds < 3 samples or its samples span
+    less than min(0.8 W, W - 1.5 period) (a hole in the speeds, or the end of the data)."""
+    n = t.size
+    a = np.full(n, np.nan)
+    se = np.full(n, np.nan)
+    if n < 3:
+        return a, se
+    # a run's samples are contiguous: bound the window inside the run with the run's own index range
+    key = run.astype(float) * 1e7 + (t - t[0])  # runs are ordered in time; 1e7 s separates them
+    lo = np.searchsorted(key, key - 0.5 * window - 1e-6, side="left")
+    hi = np.searchsorted(key, key + 0.5 * window + 1e-6, side="right") - 1
+    tc = t - t[0]
+    c1 = np.concatenate(([0.0], np.cumsum(tc)))
+    c2 = np.concatenate(([0.0], np.cumsum(tc * tc)))
+    cv = np.concatenate(([0.0], np.cumsum(v)))
+    ctv = np.concatenate(([0.0], np.cumsum(tc * v)))
+    cnt = (hi - lo + 1).astype(float)
+    st = c1[hi + 1] - c1[lo]
+    stt = c2[hi + 1] - c2[lo]
+    sv = cv[hi + 1] - cv[lo]
+    stv = ctv[hi + 1] - ctv[lo]
+    sxx = stt - st * st / np.maximum(cnt, 1.0)
+    ok = (cnt >= 3) & (tc[hi] - tc[lo] >= min(0.8 * window, window - 1.5 * period)) & (sxx > 0.0)
+    a[ok] = (stv[ok] - st[ok] * sv[ok] / cnt[ok]) / sxx[ok]
+    se[ok] = 1.0 / np.sqrt(sxx[ok])
+    return a, se
+
+
+@dataclass
+class RunArrays:
+    """The samples a regression looks at (one recording; several run_ids allowed, in time order)."""
+
+    t: np.ndarray  # s
+    v: np.ndarray  # m/s, measured
+    g: np.ndarray  # N/kg, track force at the measured position
+    tunnel: np.ndarray  # fraction of the train in a tunnel
+    run: np.ndarray  # run id
+
+    @classmethod
+    def from_series(cls, series) -> RunArrays:
+        """From a MeasurementSeries."""
+        return cls(
+            t=(series.stamp_ns - series.stamp_ns[0]) * 1e-9 if len(series) else np.zeros(0),
+            v=np.asarray(series.v, dtype=float),
+            g=np.asarray(series.track_force, dtype=float),
+            tunnel=np.asarray(series.tunnel_fraction, dtype=float),
+            run=np.asarray(series.run_id, dtype=np.int64),
+        )
+
+
+@dataclass
+class Stretch:
+    """One coasting stretch used by the regression: samples k0..k1 of its arrays, and its equations."""
+
+    t_start: float  # s
+    t_end: float  # s
+    speed_min: float  # m/s
+    speed_max: float  # m/s
+    H: np.ndarray  # (m, 3)
+    y: np.ndarray  # (m,) N/kg
+    R: np.ndarray  # (m, m) (N/kg)^2, the speed noise's
+    bias_std: float  # N/kg, std of the error common to the coast
+    run: int = 0
+    group: int = 0  # stretches of one coast (split by a short gap) share their bias
+
+
+@dataclass
+class CoastFit:
+    """The regression's answer: r = (r0, r1, r2) and its 3x3 covariance, with what it used."""
+
+    r: np.ndarray
+    covariance: np.ndarray
+    stretches: list[Stretch] = field(default_factory=list)
+    speed_noise: float = float("nan")  # m/s
+    window: float = float("nan")  # s
+
+    @property
+    def davis(self) -> Davis:
+        return Davis(*(float(x) for x in self.r))
+
+    @property
+    def coasting_time(self) -> float:
+        """Seconds of coasting used."""
+        return float(sum(s.t_end - s.t_start for s in self.stretches))
+
+    def resistance(self, v: float) -> tuple[float, float]:
+        """(r(v), its std) in N/kg at speed v (m/s)."""
+        h = np.array([1.0, v, v * v])
+        return float(h @ self.r), float(math.sqrt(max(h @ self.covariance @ h, 0.0)))
+
+
+def slope_window(settings: CoastSettings, sigma_v: float, period: float, prior: np.ndarray, v_max: float) -> float:
+    """Window (s) whose slope standard error is coast_slope_precision of r(v_max / 2)."""
+    r_ref = max(float(davis_value(prior, 0.5 * v_max)), 1e-4)
+    w = (sigma_v * sigma_v * 12.0 * period / (settings.coast_slope_precision * r_ref) ** 2) ** (1.0 / 3.0)
+    lower = max(settings.coast_window_min, settings.coast_window_samples * period)
+    return float(np.clip(w, lower, max(lower, 90.0)))
+
+
+def candidate_steps(
+    arr: RunArrays, settings: CoastSettings, prior: np.ndarray, sigma_v: float, window: float, period: float
+) -> np.ndarray:
+    """Step i (sample i-1 to i) may be coasting: both ends are candidates, same run, no gap (bool array)."""
+    a, se = local_slopes(arr.t, arr.v, arr.run, window, period)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        ratio = -(a + arr.g) / np.maximum(davis_value(prior, arr.v), 1e-6)
+        cand = (
+            (ratio >= settings.coast_ratio_min)
+            & (ratio <= settings.coast_ratio_max)
+            & (np.abs(a) >= settings.coast_hold_sigmas * se * sigma_v)
+            & (arr.v >= settings.coast_min_speed)
+        )
+    cand &= np.isfinite(a)
+    step = np.zeros(arr.t.size, dtype=bool)
+    if arr.t.size > 1:
+        gap = min(settings.max_gap, 2.5 * period)
+        step[1:] = cand[1:] & cand[:-1] & (arr.run[1:] == arr.run[:-1]) & (np.diff(arr.t) <= gap)
+    return step
+
+
+def stretch_bounds(
+    arr: RunArrays, step: np.ndarray, trim: float, min_duration: float
+) -> list[tuple[int, int, int, int]]:
+    """(k0, k1, i, j) per stretch: samples k0..k1 after trimming; candidate steps i..j (untrimmed)."""
+    t = arr.t
+    out = []
+    idx = np.flatnonzero(step)
+    if idx.size == 0:
+        return out
+    breaks = np.flatnonzero(np.diff(idx) > 1)
+    starts = np.concatenate(([idx[0]], idx[breaks + 1]))
+    ends = np.concatenate((idx[breaks], [idx[-1]]))
+    for i, j in zip(starts, ends):
+        k0 = int(np.searchsorted(t, t[i - 1] + trim - 1e-6))
+        k1 = int(np.searchsorted(t, t[j] - trim + 1e-6)) - 1
+        if k1 > k0 and t[k1] - t[k0] >= min_duration:
+            out.append((k0, k1, int(i), int(j)))
+    return out
+
+
+def stretch_equations(
+    arr: RunArrays, k0: int, k1: int, settings: CoastSettings, prior: np.ndarray, sigma_v: float, tunnel_factor: float
+) -> Stretch:
+    """The chunk equations of samples k0..k1 (module docstring, step 5)."""
+    t, v = arr.t[k0 : k1 + 1], arr.v[k0 : k1 + 1]
+    g, tun = arr.g[k0 : k1 + 1], arr.tunnel[k0 : k1 + 1]
+    cuts = [0]
+    chunk = settings.coast_chunk
+    while True:
+        nxt = int(np.searchsorted(t, t[cuts[-1]] + chunk - 1e-6))
+        if nxt >= t.size - 1 or t[-1] - t[nxt] < 0.5 * chunk:
+            if cuts[-1] != t.size - 1:
+                cuts.append(t.size - 1)
+            break
+        cuts.append(nxt)
+    m = len(cuts) - 1
+    H = np.empty((m, 3))
+    y = np.empty(m)
+    R = np.zeros((m, m))
+    durations = np.empty(m)
+    for e, (a, b) in enumerate(itertools.pairwise(cuts)):
+        tt, vv = t[a : b + 1], v[a : b + 1]
+        T = float(tt[-1] - tt[0])
+        durations[e] = T
+        H[e] = (1.0, np.trapezoid(vv, tt) / T, np.trapezoid(vv * vv * (1.0 + tunnel_factor * tun[a : b + 1]), tt) / T)
+        y[e] = -(vv[-1] - vv[0]) / T - np.trapezoid(g[a : b + 1], tt) / T
+        R[e, e] = 2.0 * sigma_v * sigma_v / (T * T)
+    for e in range(m - 1):  # neighbours share an end point
+        R[e, e + 1] = R[e + 1, e] = -sigma_v * sigma_v / (durations[e] * durations[e + 1])
+    bias = settings.coast_stretch_std * float(davis_value(prior, float(np.mean(H[:, 1]))))
+    return Stretch(float(t[0]), float(t[-1]), float(np.min(v)), float(np.max(v)), H, y, R, bias, int(arr.run[k0]))
+
+
+def assign_group(stretch: Stretch, previous: Stretch | None, merge_gap: float) -> None:
+    """The stretch belongs to the previous one's coast when it starts within merge_gap (s) of its end in the same
+    run (a short gap in the candidates inside one coast), else it opens a new group."""
+    if previous is None:
+        stretch.group = 0
+    elif stretch.run == previous.run and stretch.t_start - previous.t_end <= merge_gap:
+        stretch.group = previous.group
+    else:
+        stretch.group = previous.group + 1
+
+
+def posterior(prior: np.ndarray, P0: np.ndarray, stretches: list[Stretch]) -> tuple[np.ndarray, np.ndarray]:
+    """Gaussian posterior of r given the prior and the stretches' equations (information form); the prior itself
+    (copies) without stretches."""
+    if not stretches:
+        return prior.copy(), P0.copy()
+    info_matrix = np.linalg.inv(P0)
+    info_vector = info_matrix @ prior
+    groups: dict[int, list[Stretch]] = {}
+    for st in stretches:
+        groups.setdefault(st.group, []).append(st)
+    for members in groups.values():
+        H = np.vstack([st.H for st in members])
+        y = np.concatenate([st.y for st in members])
+        R = np.zeros((y.size, y.size))
+        k = 0
+        for st in members:
+            m = st.y.size
+            R[k : k + m, k : k + m] = st.R
+            k += m
+        bias = max(st.bias_std for st in members)
+        Ri = np.linalg.inv(R + bias * bias)
+        info_matrix = info_matrix + H.T @ Ri @ H
+        info_vector = info_vector + H.T @ Ri @ y
+    cov = np.linalg.inv(info_matrix)
+    cov = 0.5 * (cov + cov.T)
+    return cov @ info_vector, cov
+
+
+def nonnegative(r: np.ndarray, cov: np.ndarray) -> np.ndarray:
+    """Covariance-weighted projection of r onto r >= 0 (Simon & Chia), then a clip."""
+    r = r.copy()
+    for _ in range(3):
+        active = np.flatnonzero(r < 0.0)
+        if active.size == 0:
+            break
+        paa = cov[np.ix_(active, active)]
+        r = r - cov[:, active] @ np.linalg.solve(paa, r[active])
+    return np.maximum(r, 0.0)
+
+
+def _period(t: np.ndarray) -> float:
+    d = np.diff(t)
+    d = d[d > 0.0]
+    return float(np.median(d)) if d.size else 1.0
+
+
+def detect(
+    arr: RunArrays, settings: CoastSettings, prior: np.ndarray, sigma_v: float | None = None
+) -> tuple[list[tuple[int, int, int, int]], float, float]:
+    """(stretch bounds, sigma_v, window) of the arrays."""
+    sv = speed_noise(arr.v) if sigma_v is None else sigma_v
+    period = _period(arr.t)
+    v_max = float(np.max(arr.v)) if arr.v.size else 0.0
+    window = slope_window(settings, sv, period, prior, v_max)
+    step = candidate_steps(arr, settings, prior, sv, window, period)
+    min_duration = max(settings.coast_min_duration, 3.0 * period)
+    return stretch_bounds(arr, step, 0.5 * window, min_duration), sv, window
+
+
+def fit_coasts(
+    arr: RunArrays, train: TrainSpec, settings: CoastSettings | None = None, prior: Davis | None = None
+) -> CoastFit:
+    """Whole-run estimate: every coasting stretch of the run (offline, non-causal detection)."""
+    cfg = settings if settings is not None else CoastSettings()
+    r_prior = np.asarray((prior if prior is not None else train.davis).as_tuple(), dtype=float)
+    P0 = prior_covariance(r_prior, cfg.prior_scale_std, cfg.prior_coefficient_std)
+    if arr.t.size < 3:
+        return CoastFit(r_prior, P0)
+    bounds, sv, window = detect(arr, cfg, r_prior)
+    stretches: list[Stretch] = []
+    for k0, k1, _, _ in bounds:
+        st = stretch_equations(arr, k0, k1, cfg, r_prior, sv, train.tunnel_factor)
+        assign_group(st, stretches[-1] if stretches else None, 2.0 * window)
+        stretches.append(st)
+    r, cov = posterior(r_prior, P0, stretches)
+    return CoastFit(nonnegative(r, cov), cov, stretches, sv, window)
+
+
+class CoastRegression:
+    """Causal coast regression: ``push`` each measurement; r and its covariance move when a stretch is over.
+
+    Every ``REFRESH`` s the detection of :func:`fit_coasts` runs over the samples kept; a stretch is used once its
+    last candidate step lies W/2 + trim in the past (every slope that decided it saw its whole window) and it
+    began after the last stretch used. Kept are the samples from W before the first candidate run that is not over
+    yet, or before the horizon (so a pass costs the length of the open coast, not of the recording). sigma_v is
+    estimated from every moving sample seen (a bounded sample of second differences); W from sigma_v and the
+    highest speed so far.
+    """
+
+    REFRESH = 20.0  # s between detections (at least 3 sample periods)
+    NOISE_SAMPLES = 4000  # second differences kept for the speed-noise estimate
+
+    def __init__(self, train: TrainSpec, settings: CoastSettings, prior: Davis | None = None) -> None:
+        self._train = train
+        self.settings = settings
+        self.tunnel_factor = train.tunnel_factor
+        self.prior = np.asarray((prior if prior is not None else train.davis).as_tuple(), dtype=float)
+        self.P0 = prior_covariance(self.prior, settings.prior_scale_std, settings.prior_coefficient_std)
+        self.r = self.prior.copy()
+        self.covariance = self.P0.copy()
+        self.stretches: list[Stretch] = []
+        self._t: list[float] = []
+        self._v: list[float] = []
+        self._g: list[float] = []
+        self._tun: list[float] = []
+        self._run: list[int] = []
+        self._d2: list[float] = []
+        self._quantum = math.inf
+        self._v_max = 0.0
+        self._last_detect = -math.inf
+        self.window = math.nan  # s, the slope window of the latest detection
+        self._consumed = -math.inf  # t of the last candidate step of the latest stretch used (s)
+        self._d2_seen = 0
+        self._sv, self._sv_at = math.nan, 0
+        self._period = math.nan  # s, the latest sample interval
+
+    def reset(self) -> None:
+        """Back to the prior (forget every stretch)."""
+        self.__init__(self._train, self.settings, Davis(*self.prior))
+
+    def sigma_v(self) -> float:
+        """Current speed-noise estimate (m/s); recomputed after every 64 new second differences."""
+        if self._d2_seen - self._sv_at >= 64 or not math.isfinite(self._sv):
+            self._sv, self._sv_at = self._sigma_v(), self._d2_seen
+        return self._sv
+
+    def _sigma_v(self) -> float:
+        robust = float(np.median(np.abs(self._d2))) / 0.6745 / math.sqrt(6.0) if self._d2 else 0.0
+        q = self._quantum if math.isfinite(self._quantum) else 0.0
+        return max(robust, q / math.sqrt(12.0), _MIN_SPEED_NOISE) if (self._d2 or q) else 0.08
+
+    def push(self, t: float, v: float, g: float, tunnel: float, run_id: int) -> bool:
+        """One measurement (t in s, v m/s, g N/kg); True when r or its covariance changed."""
+        if not (math.isfinite(t) and math.isfinite(v) and math.isfinite(g)):
+            return False
+        if self._t and t <= self._t[-1]:
+            return False
+        if self._v:
+            dv = abs(v - self._v[-1])
+            if dv > 1e-4:
+                self._quantum = min(self._quantum, dv)
+            if len(self._v) >= 2 and self._v[-1] > 5.0 and self._run[-1] == run_id == self._run[-2]:
+                self._d2.append(v - 2.0 * self._v[-1] + self._v[-2])
+                self._d2_seen += 1
+                if len(self._d2) > self.NOISE_SAMPLES:
+                    del self._d2[: len(self._d2) - self.NOISE_SAMPLES]
+        self._t.append(t)
+        self._v.append(v)
+        self._g.append(g)
+        self._tun.append(tunnel if math.isfinite(tunnel) else 0.0)
+        self._run.append(int(run_id))
+        self._v_max = max(self._v_max, v)
+        if len(self._t) >= 2:
+            self._period = self._t[-1] - self._t[-2]
+        if t - self._last_detect < max(self.REFRESH, 3.0 * self._period):
+            return False
+        self._last_detect = t
+        return self._detect()
+
+    def _detect(self) -> bool:
+        cfg = self.settings
+        arr = RunArrays(
+            np.asarray(self._t),
+            np.asarray(self._v),
+            np.asarray(self._g),
+            np.asarray(self._tun),
+            np.asarray(self._run, dtype=np.int64),
+        )
+        if arr.t.size < 3:
+            return False
+        sv = self.sigma_v()
+        period = _period(arr.t)
+        self.window = window = slope_window(cfg, sv, period, self.prior, self._v_max)
+        step = candidate_steps(arr, cfg, self.prior, sv, window, period)
+        trim = 0.5 * window
+        bounds = stretch_bounds(arr, step, trim, max(cfg.coast_min_duration, 3.0 * period))
+        horizon = arr.t[-1] - 0.5 * window - trim  # a stretch whose last candidate step is before this is over
+        done = [b for b in bounds if arr.t[b[3]] <= horizon and arr.t[b[2]] > self._consumed]
+        changed = False
+        if done:
+            for k0, k1, _, _ in done:
+                st = stretch_equations(arr, k0, k1, cfg, self.prior, sv, self.tunnel_factor)
+                assign_group(st, self.stretches[-1] if self.stretches else None, 2.0 * window)
+                self.stretches.append(st)
+            r, cov = posterior(self.prior, self.P0, self.stretches)
+            self.r, self.covariance = nonnegative(r, cov), cov
+            self._consumed = float(arr.t[done[-1][3]])
+            changed = True
+        # the next detection needs the samples from W before the first candidate run not over yet (or before the
+        # horizon): the older ones are dropped
+        keep_t = horizon - window
+        idx = np.flatnonzero(step)
+        late = idx[arr.t[idx] > horizon] if idx.size else idx
+        if late.size:
+            i = int(late[0])
+            while i > 0 and step[i - 1]:
+                i -= 1
+            keep_t = min(keep_t, float(arr.t[i - 1]) - window if i > 0 else float(arr.t[0]))
+        self._keep_from(int(np.searchsorted(arr.t, keep_t)))
+        return changed
+
+    def _keep_from(self, k: int) -> None:
+        if k <= 0:
+            return
+        for buf in (self._t, self._v, self._g, self._tun, self._run):
+            del buf[:k]
+
+
+__all__ = [
+    "CoastFit",
+    "CoastRegression",
+    "CoastSettings",
+    "RunArrays",
+    "Stretch",
+    "davis_value",
+    "fit_coasts",
+    "prior_covariance",
+    "speed_noise",
+]
