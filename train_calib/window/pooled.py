@@ -43,7 +43,7 @@ PRIOR_COMMON = 0.18
 PRIOR_EACH = 0.10
 """Prior: relative standard deviation of each coefficient on its own."""
 PRIOR_REFERENCE_SPEED = 80.0 * KMH
-"""A coefficient that is zero in the train file gets 0.05 r(v_ref) / v_ref^i as its own sigma, m/s."""
+"""A coefficient that is zero in the train file gets 0.05 r(v_ref) / v_ref^i as its own sigma (v_ref in m/s)."""
 POWER_NOISE = 0.01
 """Relative noise of the measured tractive force per row (the pantograph power meter)."""
 HUBER = 4.0
@@ -62,7 +62,7 @@ def prior_covariance(davis: Davis | tuple[float, float, float]) -> np.ndarray:
     r = np.asarray(davis.as_tuple() if isinstance(davis, Davis) else davis, dtype=float)
     scale = np.array([1.0, PRIOR_REFERENCE_SPEED, PRIOR_REFERENCE_SPEED**2])
     floor = 0.05 * float(r @ scale) / scale
-    own = np.maximum(PRIOR_EACH * np.abs(r), floor)
+    own = np.where(r != 0.0, PRIOR_EACH * np.abs(r), floor)
     return PRIOR_COMMON**2 * np.outer(r, r) + np.diag(own**2)
 
 
