@@ -93,6 +93,9 @@ def _valid(data_dir):
         (lambda d: d["sections"][1].update(id="S1"), "sections[1].id", "duplicate"),
         (lambda d: d["stations"][0].pop("name"), "stations[0].name", "missing required key"),
         (lambda d: d["gradients"][0].update(s_m=10), "gradients[0].s_m", "must be at s_m 0"),
+        (lambda d: d.update(tunels=d.pop("tunnels")), "tunels", "unknown key (did you mean tunnels?)"),
+        (lambda d: d["tunnels"][0].update(lenght_m=400), "tunnels[0].lenght_m", "unknown key (did you mean end_m?)"),
+        (lambda d: d.update(zzz=1), "zzz", "unknown key (known keys: name, length_m"),
     ],
 )
 def test_invalid_files_are_refused_in_one_line(tmp_path, data_dir, mutate, key, problem):

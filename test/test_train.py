@@ -48,6 +48,8 @@ def test_davis_with_tunnel():
         (lambda d: d.update(max_brake_decel=0), "max_brake_decel", "greater than 0"),
         (lambda d: d.update(davis=[1, 2, 3]), "davis", "expected a mapping"),
         (lambda d: d.update(transmission_efficiency=1.5), "transmission_efficiency", "out of range"),
+        (lambda d: d.update(tunnel_factr=0.5), "tunnel_factr", "unknown key (did you mean tunnel_factor?)"),
+        (lambda d: d["davis"].update(r3=0.1), "davis.r3", "unknown key (known keys: r0, r1, r2)"),
     ],
 )
 def test_invalid_train_files(tmp_path, data_dir, mutate, key, problem):

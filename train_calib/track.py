@@ -137,10 +137,26 @@ class Track:
         raise KeyError(f"track {self.name}: no station named {name!r}")
 
 
+TRACK_KEYS = (
+    "name",
+    "length_m",
+    "geometry",
+    "gradients",
+    "speed_limits",
+    "stations",
+    "curves",
+    "tunnels",
+    "sections",
+    "description",
+)
+"""The keys of a track file (../shared/INTERFACES.md); any other is refused with the nearest of these."""
+
+
 def load_track(path: str | Path) -> Track:
     """Read and validate a track file; a problem raises ConfigError('<file>: <key>: <problem>')."""
     data = load_yaml_mapping(path, "track file")
     c = Checker(path)
+    c.known_keys(data, TRACK_KEYS)
     name = c.string(data, "name")
     length = c.number(data, "length_m", low=0.0, high=3.0e6, low_open=True, unit="m")
 
@@ -251,6 +267,7 @@ def _entries(
     for i, item in enumerate(items):
         if not isinstance(item, dict):
             raise c.fail(f"{key}[{i}]", f"expected a mapping with {', '.join(fields)}, found {type(item).__name__}")
+        c.known_keys(item, fields, f"{key}[{i}].")
         for f in fields:
             c.get(item, f, f"{key}[{i}].")
     return list(items)

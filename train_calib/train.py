@@ -64,13 +64,33 @@ class TrainSpec:
         return envelope if self.adhesive_mass_fraction <= 0 else np.minimum(envelope, cap)
 
 
+TRAIN_KEYS = (
+    "name",
+    "mass_t",
+    "rotating_mass_factor",
+    "length_m",
+    "davis",
+    "max_tractive_effort",
+    "max_tractive_power",
+    "max_brake_decel",
+    "transmission_efficiency",
+    "tunnel_factor",
+    "max_speed_kmh",
+    "adhesive_mass_fraction",
+    "auxiliary_power_kw",
+)
+"""The keys of a train file (../shared/INTERFACES.md); any other is refused with the nearest of these."""
+
+
 def load_train(path: str | Path) -> TrainSpec:
     """Read and validate a train file; a problem raises ConfigError('<file>: <key>: <problem>')."""
     data = load_yaml_mapping(path, "train file")
     c = Checker(path)
+    c.known_keys(data, TRAIN_KEYS)
     davis_map = c.get(data, "davis")
     if not isinstance(davis_map, dict):
         raise c.fail("davis", f"expected a mapping with r0, r1, r2, found {type(davis_map).__name__}")
+    c.known_keys(davis_map, ("r0", "r1", "r2"), "davis.")
     davis = Davis(
         r0=c.number(davis_map, "r0", "davis.", low=0.0, high=0.2, unit="N/kg"),
         r1=c.number(davis_map, "r1", "davis.", low=0.0, high=0.01, unit="N/(kg m/s)"),

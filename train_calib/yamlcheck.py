@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import difflib
 import math
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -41,6 +42,17 @@ class Checker:
 
     def fail(self, key: str, problem: str) -> ConfigError:
         return ConfigError(self.source, key, problem)
+
+    def known_keys(self, data: Mapping[str, Any], keys: Sequence[str], prefix: str = "") -> None:
+        """Refuse a key not in `keys` (a typo in an optional key would otherwise be ignored), naming the nearest
+        valid one."""
+        if not isinstance(data, Mapping):
+            return
+        for key in data:
+            if key not in keys:
+                close = difflib.get_close_matches(str(key), list(keys), n=1, cutoff=0.6)
+                hint = f"did you mean {close[0]}?" if close else f"known keys: {', '.join(keys)}"
+                raise self.fail(f"{prefix}{key}", f"unknown key ({hint})")
 
     def get(
         self, data: Mapping[str, Any], key: str, prefix: str = "", required: bool = True, default: Any = None

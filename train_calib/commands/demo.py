@@ -5,8 +5,9 @@ as in Cunillera et al. 2022) is replayed as fast as the graph keeps up; the summ
 running-resistance estimate with the manufacturer values and with the simulated truth beside the bag,
 and lists the regime shares and driving features. Outputs go to demo_output/ (or --out).
 
-The UKF runs the ``converging`` preset (config/ukf_converging.yaml): with the paper's Table 1 settings (the node
-defaults, ``--ukf-preset paper``) the estimate stays at the train file's values, so a demo would show nothing learnt.
+The UKF runs the defaults (preset ``learning``: r from the run's coasting stretches, docs/estimator.md);
+``--ukf-preset paper`` gives Table 1 (the estimate stays at the train file's values), ``--ukf-preset converging`` the
+earlier learning preset.
 """
 
 from __future__ import annotations
@@ -23,13 +24,14 @@ NAME = "demo"
 HELP = "replay the bundled default bag through the node graph and print a summary"
 
 DEFAULT_BAG = "intercity_32km_10s_00"
-DEFAULT_UKF_PRESET = "converging"
+DEFAULT_UKF_PRESET = None  # the node defaults: preset learning
 PRESET_NOTE = {
-    "converging": "UKF preset: converging (config/ukf_converging.yaml), which learns r0, r1, r2 from the run; the "
-    "paper's Table 1 settings (the node defaults) keep them at the train file's values. --ukf-preset paper gives "
-    "Table 1.",
-    "paper": "UKF preset: paper (Cunillera et al. 2022, Table 1; the node defaults): r0, r1, r2 stay near the train "
-    "file's values. --ukf-preset converging learns them.",
+    None: "UKF preset: learning (the node defaults): r0, r1, r2 learnt from the run's coasting stretches, from the "
+    "train file's values with about 19 % std of r(v). --ukf-preset paper gives Table 1.",
+    "learning": "UKF preset: learning (the node defaults): r0, r1, r2 learnt from the run's coasting stretches.",
+    "converging": "UKF preset: converging (config/ukf_converging.yaml): r in the UKF state, learnt from confirmed "
+    "coasting and traction power.",
+    "paper": "UKF preset: paper (Cunillera et al. 2022, Table 1): r0, r1, r2 stay near the train file's values.",
 }
 
 
@@ -47,9 +49,9 @@ def run(args: argparse.Namespace) -> int:
     if not bag.exists():
         bag = paths.bags_dir() / args.bag
     if not bag.exists():
-        raise BagError(f"{bag}: bundled bag not found (run `train-calib simulate` or pass --bag)")
+        raise BagError(missing_bag(str(args.bag)))
     args.bag = bag
-    truth = load_truth(bag)
+    truth = load_truth(bag, args.truth)
     meta = truth["meta"] if truth else {}
     track = _bundled(meta.get("track", {}).get("file"), "intercity_32km", paths.track_file)
     train = _bundled(meta.get("train", {}).get("file"), "virm6", paths.train_file)
@@ -71,6 +73,23 @@ def run(args: argparse.Namespace) -> int:
     )
     report_input_error(NAME, summary)
     return exit_status(summary)
+
+
+def bundled_bags() -> list[str]:
+    """Names of the bags in bags/ (rosbag2 directories and bare .mcap files)."""
+    folder = paths.bags_dir()
+    if not folder.is_dir():
+        return []
+    names = [p.name for p in folder.iterdir() if p.is_dir() and (p / "metadata.yaml").is_file()]
+    names += [p.name for p in folder.iterdir() if p.is_file() and p.suffix == ".mcap"]
+    return sorted(names)
+
+
+def missing_bag(name: str) -> str:
+    """One line: the --bag that was not found, and the bundled names."""
+    bundled = bundled_bags()
+    listed = ", ".join(bundled) if bundled else f"none in {paths.bags_dir()} (train-calib simulate makes some)"
+    return f"--bag {name}: no such bag (neither a path nor a bundled name; bundled: {listed})"
 
 
 def _bundled(file_name: str | None, default: str, resolve) -> str:

@@ -8,7 +8,9 @@ DIR/output.mcap a complete MCAP file), summary.json, report.png. See docs/nodes.
 
 Exit status: 0; 2 with one line when the input or the configuration is unreadable (nothing replayed); 3 with
 one line when the input bag is damaged (truncated, corrupt chunks, undecodable messages: what could be read
-was replayed, the outputs are complete for it, summary.json has ``input_error``); 130 (SIGINT) or 143
+was replayed, the outputs are complete for it, summary.json has ``input_error``); 4 with one line when every speed
+sample was dropped, none reached the filter (most often the wrong --track: the fixes lie off its line; output.mcap
+and summary.json, with ``no_samples``, hold what was recorded, no report.png); 130 (SIGINT) or 143
 (SIGTERM) when interrupted (the outputs hold everything processed until then; a second signal aborts).
 """
 
@@ -19,6 +21,7 @@ import json
 import math
 import sys
 import tempfile
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -78,9 +81,10 @@ def add_common_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--ukf-preset",
-        choices=("paper", "converging"),
-        help="ukf_node parameters of a preset (docs/estimator.md): paper (Table 1, the defaults) or converging "
-        "(config/ukf_converging.yaml); --params-file values still override",
+        choices=("learning", "paper", "converging"),
+        help="ukf_node parameters of a preset (docs/estimator.md): learning (the defaults: r learnt from the run's "
+        "coasting), paper (Table 1, config/ukf_paper.yaml) or converging (config/ukf_converging.yaml); --params-file "
+        "values still override",
     )
     parser.add_argument(
         "--window",
@@ -116,30 +120,62 @@ def add_common_arguments(parser: argparse.ArgumentParser) -> None:
         help="run the graph itself in ROS domain N with your discovery settings (not isolated: other graphs in N "
         "exchange messages with it). Default: a free domain of its own, localhost only",
     )
+    parser.add_argument(
+        "--truth",
+        type=Path,
+        metavar="FILE",
+        help="simulated truth JSON with resistance r0, r1, r2 to compare with (default: <bag>.truth.json when it is "
+        "the simulator's own; any other file there is ignored with a note)",
+    )
     parser.add_argument("--overwrite", action="store_true", help="replace the outputs of a previous replay in DIR")
     parser.add_argument("--no-report", action="store_true", help="do not draw report.png")
     parser.add_argument("--quiet", action="store_true", help="print only errors and the output location")
 
 
-def load_truth(bag: Path) -> dict[str, Any] | None:
-    """The simulated truth beside a bag (``<bag>.truth.json`` of ``train-calib simulate``), else None."""
+SIM_TRUTH_FORMAT = "train_calib.sim/"  # the "format" of the simulator's <bag>.truth.json ("train_calib.sim/1")
+
+
+def read_truth_file(path: Path) -> dict[str, Any]:
+    """The simulated resistance of a truth JSON (``{"resistance": {"r0", "r1", "r2"}, ...}``); BagError (one line)
+    when it has none."""
+    try:
+        meta = json.loads(path.read_text(encoding="utf-8"))
+        resistance = meta["resistance"]
+        values = {k: float(resistance[k]) for k in ("r0", "r1", "r2")}
+    except FileNotFoundError:
+        raise BagError(f"{path}: truth file not found") from None
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise BagError(
+            f"{path}: not a truth file with resistance r0, r1, r2: {exc.__class__.__name__}: {exc}"
+        ) from None
+    return {**values, "file": str(path), "meta": meta}
+
+
+def load_truth(
+    bag: Path, truth_file: Path | None = None, note: Callable[[str], None] | None = None
+) -> dict[str, Any] | None:
+    """The simulated truth: `truth_file` when given (--truth; BagError when it holds none), else ``<bag>.truth.json``
+    when it is the simulator's own (``"format": "train_calib.sim/N"`` with the resistance), else None. Any other
+    file beside the bag never stops a replay: it is ignored with a one-line `note`."""
     from ..sim.truthio import truth_paths
 
+    if truth_file is not None:
+        return read_truth_file(Path(truth_file))
     path = truth_paths(bag)[1]
     if not path.is_file():
         return None
     try:
         meta = json.loads(path.read_text(encoding="utf-8"))
-        resistance = meta["resistance"]
-        return {
-            "r0": float(resistance["r0"]),
-            "r1": float(resistance["r1"]),
-            "r2": float(resistance["r2"]),
-            "file": str(path),
-            "meta": meta,
-        }
-    except (OSError, ValueError, KeyError, TypeError) as exc:
-        raise BagError(f"{path}: unreadable truth file: {exc.__class__.__name__}: {exc}") from None
+        simulated = isinstance(meta, dict) and str(meta.get("format", "")).startswith(SIM_TRUTH_FORMAT)
+        truth = read_truth_file(path) if simulated else None
+    except (OSError, ValueError, BagError) as exc:
+        simulated, truth = False, None
+        reason = str(exc).removeprefix(f"{path}: ")
+    else:
+        reason = "not the simulator's truth format" if not simulated else ""
+    if truth is None and note is not None:
+        note(f"note: {path}: {reason or 'unreadable'}; ignored (--truth FILE gives the truth)")
+    return truth
 
 
 def execute(args: argparse.Namespace, out: Path, track: str, train: str) -> dict[str, Any]:
@@ -151,7 +187,7 @@ def execute(args: argparse.Namespace, out: Path, track: str, train: str) -> dict
     from ..train import load_train
 
     log = (lambda text: None) if args.quiet else (lambda text: print(text, file=sys.stderr, flush=True))
-    truth = load_truth(args.bag)
+    truth = load_truth(args.bag, args.truth, note=log)
     with tempfile.TemporaryDirectory(prefix="train_calib_preset_") as tmp:
         params_files = tuple(args.params_file)
         if args.ukf_preset:
@@ -191,7 +227,7 @@ def execute(args: argparse.Namespace, out: Path, track: str, train: str) -> dict
             "mode": result.mode,
             "executor": result.executor,
             "rate": args.rate,
-            "ukf_preset": args.ukf_preset or "parameters",
+            "ukf_preset": configuration_name(args),
             "nodes": list(result.nodes),
             "wall_time_s": round(result.wall_s, 3),
             "bag_duration_s": round(result.bag_duration_s, 3),
@@ -206,8 +242,11 @@ def execute(args: argparse.Namespace, out: Path, track: str, train: str) -> dict
             "live": result.live,
         },
     )
+    summary["no_samples"] = no_samples_error(args.bag, track, result.sent, result.recorded, summary, result.interrupted)
     write_summary(out / "summary.json", summary)
-    if not args.no_report:
+    if summary["no_samples"]:
+        log("report.png not drawn: no sample reached the filter")
+    elif not args.no_report:
         title = f"{bag_name(args.bag)}: {train_spec.name}, UKF estimate (layout of Cunillera et al. 2022, Fig. 3 and 6)"
         try:
             write_report(out / "report.png", outputs, train_spec, truth=truth_values, title=title)
@@ -220,6 +259,33 @@ def execute(args: argparse.Namespace, out: Path, track: str, train: str) -> dict
     return summary
 
 
+def no_samples_error(
+    bag: Path,
+    track: str,
+    sent: dict[str, int],
+    recorded: dict[str, int],
+    summary: dict[str, Any],
+    interrupted: bool,
+) -> str | None:
+    """One line when the bag's speed samples were sent and none became a measurement (every one dropped: most
+    often the wrong --track, the fixes off its line), else None."""
+    speed = sent.get("/train/speed", 0)
+    if interrupted or not speed or recorded.get("/train_calib/measurement", 0):
+        return None
+    ingest = summary.get("dropped", {}).get("gnss_speed_node", {})
+    fixes = sent.get("/gnss/fix", 0)
+    off = ingest.get("/gnss/fix", {}).get("off_track", 0)
+    reasons = "; ".join(
+        f"{topic} " + ", ".join(f"{r} {n}" for r, n in sorted(counts.items()))
+        for topic, counts in sorted(ingest.items())
+        if counts
+    )
+    line = f"{bag}: none of its {speed} speed samples reached the filter (dropped: {reasons or 'none counted'})"
+    if off and off >= fixes // 2:
+        line += f"; {off} of {fixes} GNSS fixes lie off track {track}: is --track the bag's line?"
+    return line
+
+
 def preset_params_yaml(name: str) -> str:
     """A params file with every UKFConfig parameter of ukf_node in a preset (config/ukf_<name>.yaml's values)."""
     from ..nodes.config import ukf_preset_yaml
@@ -227,9 +293,16 @@ def preset_params_yaml(name: str) -> str:
     return ukf_preset_yaml(name)
 
 
+def configuration_name(args: argparse.Namespace) -> str:
+    """Which UKF configuration ran: the preset (``learning`` at the defaults), and whether params files override."""
+    name = args.ukf_preset or "learning"
+    return name + (" + --params-file" if getattr(args, "params_file", None) else "")
+
+
 EXIT_OK = 0
 EXIT_ERROR = 2  # unreadable input or configuration: nothing was replayed (one line on stderr)
 EXIT_DAMAGED_INPUT = 3  # the input bag is damaged: what could be read was replayed, the outputs are complete for it
+EXIT_NO_SAMPLES = 4  # every speed sample was dropped (e.g. the wrong --track): the outputs hold what was recorded
 
 
 def exit_status(summary: dict[str, Any]) -> int:
@@ -239,12 +312,16 @@ def exit_status(summary: dict[str, Any]) -> int:
         return 128 + int(summary.get("signal") or 2)
     if summary.get("input_error"):
         return EXIT_DAMAGED_INPUT
+    if summary.get("no_samples"):
+        return EXIT_NO_SAMPLES
     return EXIT_OK
 
 
 def report_input_error(command: str, summary: dict[str, Any]) -> None:
     if summary.get("input_error"):
         print(f"train-calib {command}: error: {summary['input_error']}", file=sys.stderr)
+    elif summary.get("no_samples"):
+        print(f"train-calib {command}: error: {summary['no_samples']}", file=sys.stderr)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -256,7 +333,7 @@ def run(args: argparse.Namespace) -> int:
         print(format_summary(summary))
     print(
         f"outputs: {out}/output.mcap (+ metadata.yaml), {out}/summary.json"
-        + ("" if args.no_report else f", {out}/report.png")
+        + ("" if args.no_report or summary.get("no_samples") else f", {out}/report.png")
     )
     report_input_error(NAME, summary)
     return exit_status(summary)
