@@ -31,6 +31,7 @@ from .estimation import (
     ResistanceEstimator,
     UKFConfig,
 )
+from .estimation.coast_regression import CoastFit, CoastSettings, RunArrays, fit_coasts
 from .estimation.records import EFFORT_COMPUTED, EstimateSample
 from .estimation.safeguards import SafeguardConfig
 from .ingest import Ingest, IngestConfig, IngestStats, fix_from_msg, power_from_msg, speed_from_msg
@@ -158,6 +159,7 @@ class PipelineOutput:
     regimes: list[RegimeRecord] = field(default_factory=list)
     features: list[Features] = field(default_factory=list)
     windows: list[WindowFit] = field(default_factory=list)  # /train_calib/window_resistance (with traction power)
+    best: CoastFit | None = None  # the whole run's best estimate (offline coast regression), after end_of_input
     ingest_stats: IngestStats | None = None
 
     @property
@@ -264,7 +266,18 @@ class Pipeline:
                 self.add_measurement(m)
         self._publish_regimes(self.regimes.flush())
         self.out.features += self.features.end_of_input()
+        self.out.best = whole_run_best(self.out.measurements, self.estimator)
         return self.out
+
+
+def whole_run_best(measurements: list[Measurement], estimator: ResistanceEstimator) -> CoastFit | None:
+    """The whole run's best estimate of r (the coast regression over every coasting stretch, offline), with the
+    estimator's train, prior and coast-regression settings; None without measurements."""
+    if not measurements:
+        return None
+    series = MeasurementSeries.from_measurements(measurements)
+    settings = CoastSettings.from_config(estimator.config)
+    return fit_coasts(RunArrays.from_series(series), estimator.train, settings, estimator.prior)
 
 
 def bag_messages(bag: str | Path) -> Iterator[tuple[str, Any]]:
@@ -300,4 +313,5 @@ __all__ = [
     "classify_estimate",
     "run_bag",
     "run_measurements",
+    "whole_run_best",
 ]

@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from .bagio import iter_bag, stamp_ns
+from .estimation.coast_regression import CoastSettings, RunArrays, fit_coasts
 from .estimation.records import EFFORT_COMPUTED, EFFORT_SOURCES
 from .physics import KMH, davis
 from .regime_codes import REGIME_NAMES, regime_name
@@ -56,6 +57,7 @@ class Outputs:
     diagnostics_level: dict[str, int] = field(default_factory=dict)
     diagnostics_message: dict[str, str] = field(default_factory=dict)
     counts: Counter = field(default_factory=Counter)
+    last_r_covariance: np.ndarray | None = None  # 3x3, of the last /train_calib/resistance message
 
 
 def _plain(value: Any) -> Any:
@@ -82,10 +84,14 @@ def read_outputs(bag: str | Path) -> Outputs:
             continue
         msg = m.decode()
         if m.topic == MEASUREMENT:
-            meas.append((stamp_ns(msg.header), msg.s, msg.v, msg.run_id, msg.speed_limit, msg.s_measured))
+            meas.append(
+                (stamp_ns(msg.header), msg.s, msg.v, msg.run_id, msg.speed_limit, msg.s_measured, msg.track_force,
+                 msg.tunnel_fraction)
+            )  # fmt: skip
         elif m.topic == RESISTANCE:
             cov = np.asarray(msg.covariance, dtype=float).reshape(5, 5)
             std = np.sqrt(np.maximum(np.diag(cov), 0.0))
+            out.last_r_covariance = cov[2:, 2:]
             est.append(
                 (stamp_ns(msg.header), msg.run_id, msg.s, msg.v, msg.r0, msg.r1, msg.r2, std[2], std[3], std[4],
                  msg.effort, msg.acceleration, msg.health, msg.effort_known, msg.nis,
@@ -126,6 +132,8 @@ def read_outputs(bag: str | Path) -> Outputs:
             "run_id": np.array(a[3], dtype=np.int64),
             "speed_limit": np.array(a[4]),
             "s_measured": np.array(a[5], dtype=bool),
+            "track_force": np.array(a[6], dtype=float),
+            "tunnel_fraction": np.array(a[7], dtype=float),
         }
     if est:
         a = list(zip(*est))
@@ -266,6 +274,53 @@ def _estimate(est: dict[str, np.ndarray], i: int, train: TrainSpec | None, truth
     return out
 
 
+REFERENCE_SPEEDS_KMH = (40, 80, 120)
+
+
+def resistance_at_speeds(
+    r: np.ndarray, cov: np.ndarray, train: TrainSpec | None, truth: dict | None
+) -> dict[str, dict[str, float]]:
+    """r(v) (N/kg) and its std at the reference speeds, with the train file's and the truth's values when known."""
+    out: dict[str, dict[str, float]] = {}
+    for kmh in REFERENCE_SPEEDS_KMH:
+        v = kmh / 3.6
+        h = np.array([1.0, v, v * v])
+        row = {"value": float(h @ r), "std": float(math.sqrt(max(float(h @ cov @ h), 0.0)))}
+        if train is not None:
+            row["manufacturer"] = float(train.davis(v))
+        if truth is not None and all(c in truth for c in COEFFS):
+            row["truth"] = float(h @ np.array([truth[c] for c in COEFFS]))
+            row["vs_truth"] = (row["value"] - row["truth"]) / row["truth"] if row["truth"] else None
+        out[str(kmh)] = row
+    return out
+
+
+def best_estimate(
+    meas: dict[str, np.ndarray], train: TrainSpec, truth: dict | None, coast: CoastSettings | None = None
+) -> dict[str, Any]:
+    """The whole run's best estimate of r: the coast regression over every coasting stretch of the recorded
+    measurements (offline; docs/estimator.md, "Coast regression"), with its covariance and r(v) at the reference
+    speeds. Without a coasting stretch it is the train file's values with the prior's covariance, and says so."""
+    arrays = RunArrays(
+        t=meas["t"], v=meas["v"], g=meas["track_force"], tunnel=meas["tunnel_fraction"], run=meas["run_id"]
+    )
+    fit = fit_coasts(arrays, train, coast)
+    out: dict[str, Any] = {
+        "method": "coast regression over the whole run",
+        **{c: float(x) for c, x in zip(COEFFS, fit.r)},
+        "covariance": fit.covariance,
+        "resistance_at_kmh": resistance_at_speeds(fit.r, fit.covariance, train, truth),
+        "coasting_stretches": len(fit.stretches),
+        "coasting_s": fit.coasting_time,
+        "speed_noise_m_s": fit.speed_noise,
+        "slope_window_s": fit.window,
+        "learnt": bool(fit.stretches),
+    }
+    if not fit.stretches:
+        out["note"] = "no coasting stretch: the train file's values with the prior's covariance"
+    return out
+
+
 def regime_shares(features: list[dict[str, Any]]) -> dict[str, float]:
     """Time shares over all runs: each run's closing features weighted by its run time."""
     closing = run_features(features)
@@ -294,8 +349,9 @@ def summarize(
     train: TrainSpec | None = None,
     truth: dict[str, float] | None = None,
     extra: dict[str, Any] | None = None,
+    coast: CoastSettings | None = None,
 ) -> dict[str, Any]:
-    """The summary.json content."""
+    """The summary.json content (``coast``: the settings of the whole run's best estimate, the defaults if None)."""
     est = outputs.est
     summary: dict[str, Any] = dict(extra or {})
     if train is not None:
@@ -303,6 +359,12 @@ def summarize(
     if est:
         last = len(est["t"]) - 1
         summary["final"] = _estimate(est, last, train, truth)
+        r_final = np.array([est[c][last] for c in COEFFS], dtype=float)
+        if outputs.last_r_covariance is not None:
+            summary["final"]["covariance"] = outputs.last_r_covariance
+            summary["final"]["resistance_at_kmh"] = resistance_at_speeds(
+                r_final, outputs.last_r_covariance, train, truth
+            )
         runs = []
         features = run_features(outputs.features)
         for rid in sorted(set(est["run_id"].tolist())):
@@ -326,6 +388,8 @@ def summarize(
     else:
         summary["final"] = None
         summary["runs"] = []
+    if train is not None and outputs.meas:
+        summary["best"] = best_estimate(outputs.meas, train, truth, coast)
     if outputs.windows:
         summary["window"] = window_summary(outputs.windows, train, truth)
         summary["window"]["pooled"] = window_pooled(outputs.windows[-1])
@@ -389,6 +453,7 @@ def format_summary(summary: dict[str, Any]) -> str:
             if has_truth:
                 row += f" {e.get('truth', float('nan')):11.4e} {_pct(e.get('vs_truth')):>9}"
             lines.append(row + f"  {UNITS[c]}")
+    lines += _format_resistance(summary)
     shares = summary.get("regime_share", {})
     if shares:
         lines.append(
@@ -442,6 +507,35 @@ def format_summary(summary: dict[str, Any]) -> str:
     if summary.get("input_error"):
         lines.append(f"Input: {summary['input_error']}")
     return "\n".join(lines)
+
+
+def _format_resistance(summary: dict[str, Any]) -> list[str]:
+    """r(v) at the reference speeds: the on-board (causal) value and the whole run's best, with sigma."""
+    lines = []
+    final = summary.get("final") or {}
+    best = summary.get("best")
+    config = summary.get("ukf_preset")
+    if config:
+        lines.append(f"Configuration: ukf preset {config}")
+    for label, rows in (("on board (last message)", final.get("resistance_at_kmh")),
+                        ("whole run (offline)", best.get("resistance_at_kmh") if best else None)):  # fmt: skip
+        if not rows:
+            continue
+        parts = []
+        for kmh, row in rows.items():
+            text = f"{kmh} km/h {row['value']:.4f} +- {row['std']:.4f}"
+            if row.get("vs_truth") is not None:
+                text += f" ({_pct(row['vs_truth'])} vs truth)"
+            elif row.get("manufacturer"):
+                text += f" ({_pct((row['value'] - row['manufacturer']) / row['manufacturer'])} vs manuf.)"
+            parts.append(text)
+        lines.append(f"r(v) N/kg, {label}: " + ", ".join(parts))
+    if best is not None:
+        if best["learnt"]:
+            lines.append(f"  learnt from {best['coasting_stretches']} coasting stretches ({best['coasting_s']:.0f} s)")
+        else:
+            lines.append("  no coasting stretch found: the estimate is the train file's values with the prior's sigma")
+    return lines
 
 
 def _format_window(window: dict[str, Any] | None) -> list[str]:
