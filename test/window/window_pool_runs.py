@@ -69,3 +69,71 @@ def make_run(
     sim = simulate_run(track, train, driver=driver, sensors=sensors, rng=rng, resistance=truth,
                        start_station=track.stations[0].name, stop_station=track.stations[-1].name)  # fmt: skip
     return PoolRun(track, train, truth, sim.measurements(track, train), sim.truth.regime)
+
+
+VALIDATION = Path(__file__).resolve().parents[2].parent / "shared" / "validation" / "runs"
+"""The validation family's tracks and trains (outside the repository; the tables use them where present)."""
+REPORT_CASES = CASES + tuple(
+    (VALIDATION / track, VALIDATION / train)
+    for track, train in (
+        ("track_stadelhofen.yaml", "train_kiss.yaml"),
+        ("track_vasteras.yaml", "train_kiss.yaml"),
+        ("track_vasteras.yaml", "train_loco.yaml"),
+        ("track_yizhuang.yaml", "train_metro.yaml"),
+    )
+)
+
+
+def plain_lsq(run: PoolRun) -> np.ndarray:
+    """Plain least squares over the powered steps (no windows, no bounds, no constraints): the rows of eq. 4 that
+    are valid, not braking (regime from power) and not regenerating, N/kg units."""
+    from train_calib.window import BRAKING, WindowConfig, difference_rows, regime_from_power, tractive_force
+
+    s, train, cfg = run.series, run.train, WindowConfig()
+    consumed = np.where(s.power_valid, s.power_consumed, np.nan)
+    f = tractive_force(s.v, consumed, s.power_regenerated, train, cfg.min_speed) / train.effective_mass_kg
+    rows = difference_rows(s.stamp_ns * 1e-9, s.v, f, s.track_force, s.tunnel_fraction, train, cfg, s.v_variance)
+    keep = rows.valid & (regime_from_power(rows.force, rows.acceleration, cfg) != BRAKING)
+    keep &= ~(s.power_regenerated[:-1] > 0.0)
+    return np.linalg.lstsq(rows.x[keep], rows.y[keep], rcond=None)[0]
+
+
+def report(seeds: list[int], pipeline: bool) -> None:
+    """Per run and per family (sensor, driving): pooled r(v_eval) error, its z, prior and plain LSQ errors."""
+    from train_calib.pipeline import run_measurements
+    from train_calib.window import WindowCalibrator
+
+    cases = [c for c in REPORT_CASES if not isinstance(c[0], Path) or c[0].exists()]
+    families: dict[tuple[float, str], list[tuple[float, float]]] = {}
+    for quantum in (0.1, 1.0):
+        for style in ("hold", "cycles"):
+            for case in range(len(cases)):
+                for seed in seeds:
+                    run = make_run(case, seed, quantum, style, cases)
+                    if pipeline:  # the graph's reference: regimes from regime_node
+                        fits = run_measurements(run.series, run.train).windows
+                    else:
+                        cal = WindowCalibrator(run.train)
+                        fits = [f for i in range(len(run.series)) if (f := cal.update(run.series[i])) is not None]
+                    last, v = fits[-1], run.v_eval
+                    x = np.array([1.0, v, v * v])
+                    true = run.truth(v)
+                    error = float(x @ last.pooled / true - 1.0)
+                    sigma = float(np.sqrt(x @ np.reshape(last.pooled_covariance, (3, 3)) @ x) / true)
+                    prior = float(run.train.davis(v) / true - 1.0)
+                    lsq = float(x @ plain_lsq(run) / true - 1.0)
+                    families.setdefault((quantum, style), []).append((error, error / sigma))
+                    print(f"{quantum:g} km/h | {style} | {run.track.name} / {run.train.name} | {seed} | "
+                          f"{v / KMH:.0f} | {100 * error:+.2f} | {100 * sigma:.2f} | {error / sigma:+.1f} | "
+                          f"{100 * prior:+.1f} | {100 * lsq:+.2f} | {last.pooled_windows}", flush=True)  # fmt: skip
+    for (quantum, style), values in families.items():
+        e = np.abs([a for a, _ in values])
+        z = np.abs([b for _, b in values])
+        print(f"{quantum:g} km/h | {style} | {len(e)} | {100 * np.median(e):.2f} | {100 * e.max():.2f} | "
+              f"{np.mean(e < 0.03):.0%} | {np.mean(z < 2.0):.0%}")  # fmt: skip
+
+
+if __name__ == "__main__":  # python test/window/window_pool_runs.py 3,4,5 [pipeline]
+    import sys
+
+    report([int(x) for x in sys.argv[1].split(",")], len(sys.argv) > 2 and sys.argv[2] == "pipeline")

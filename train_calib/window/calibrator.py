@@ -340,9 +340,10 @@ class WindowCalibrator:
         """The step to m in the window's equation (pooled.WindowEquations): the row the fit takes, in Python (one
         StepModel.row per sample), used unless braking (as the fit) or regenerating at either end."""
         step = self._step
-        force = step.force(m.v, m.power_consumed, m.power_regenerated) if m.power_valid else math.nan
-        sample = (t, m.v, force, m.track_force, m.tunnel_fraction, m.v_variance, step.limit(m.v))
-        regenerating = m.power_valid and m.power_regenerated > 0.0
+        v, regenerated = float(m.v), float(m.power_regenerated)  # plain floats (numpy scalars are slow)
+        force = step.force(v, float(m.power_consumed), regenerated) if m.power_valid else math.nan
+        sample = (t, v, force, float(m.track_force), float(m.tunnel_fraction), float(m.v_variance), step.limit(v))
+        regenerating = bool(m.power_valid) and regenerated > 0.0
         previous, self._pool_last = self._pool_last, (regime, sample, regenerating)
         if previous is not None:
             row = step.row(previous[1], sample)
@@ -356,7 +357,7 @@ class WindowCalibrator:
 
     def _resistance_at_speed(self, fit: WindowFit, v_variance: float) -> None:
         """The window's resistance at its mean speed (fit.resistance_*) and the pooled r(v) (fit.pooled*)."""
-        equation = self._equations.equation(v_variance)
+        equation = self._equations.equation(float(v_variance))
         pooled = self.pooled
         if equation is not None:
             pooled.add(equation)

@@ -66,11 +66,12 @@ def prior_covariance(davis: Davis | tuple[float, float, float]) -> np.ndarray:
     return PRIOR_COMMON**2 * np.outer(r, r) + np.diag(own**2)
 
 
-@dataclass(frozen=True, slots=True)
+@dataclass(slots=True)
 class WindowEquation:
     """One window as an equation in (r0, r1, r2): mean_y = mean_x . theta, with its variance.
 
     mean_x: (1, mean v, mean v^2 (1 + f_tun tau)) over the rows, m/s and (m/s)^2; mean_y N/kg; variance (N/kg)^2.
+    A plain record (slots, not frozen: one is made per sample, and a frozen dataclass takes longer to build).
     """
 
     start_ns: int  # end of the oldest step in the window, ns
