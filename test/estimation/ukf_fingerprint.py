@@ -1,0 +1,94 @@
+"""Fingerprint of the estimator's outputs: a sha256 over every output byte of the whole-run API.
+
+Run before and after a refactoring of ``estimation/ukf.py`` / ``run.py``: the hash must not change (bit-identical
+outputs). Covers ``estimate_run``, ``resistance_run`` and ``smooth_run`` for the presets learning (the default,
+``UKFConfig()``), paper and converging, on simulated runs with and without traction power at 10 s and 1 Hz, on the
+synthetic runs at 10 s and 1 Hz, and on the bundled bags through ``train_calib.pipeline.run_bag`` (per-sample
+``update()``; the bags' measurements also through the whole-run API).
+
+    .venv/bin/python test/estimation/ukf_fingerprint.py [-v]     # -v: one hash per case too
+"""
+
+from __future__ import annotations
+
+import hashlib
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # repo_paths
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from estimation_cases import simulated_run, synthetic_run
+
+from train_calib.estimation import UKFConfig, estimate_run, smooth_run
+from train_calib.estimation.records import EstimateSeries
+from train_calib.estimation.run import resistance_run
+from train_calib.measurement import MeasurementSeries
+
+PRESETS = {"learning": UKFConfig(), "paper": UKFConfig.paper(), "converging": UKFConfig.converging()}
+BAGS = {
+    "intercity_32km_10s_00": ("intercity_32km", "virm6"),
+    "intercity_32km_10s_04": ("intercity_32km", "virm6"),
+    "tunnel_line_37km_1s_00": ("tunnel_line_37km", "icrm"),
+}
+
+
+def series_bytes(est: EstimateSeries) -> bytes:
+    """Every field of an EstimateSeries, in field order, as raw bytes (name, dtype and shape included)."""
+    out = []
+    for name, value in vars(est).items():
+        a = np.ascontiguousarray(value)
+        out.append(f"{name}:{a.dtype.str}:{a.shape}".encode())
+        out.append(a.tobytes())
+    return b"".join(out)
+
+
+def cases():
+    """(name, train, series) of every input run."""
+    for power in (False, True):
+        for period in (10.0, 1.0):
+            _run, series, _truth, train = simulated_run(0, period, power)
+            yield f"sim-power{int(power)}-{period:g}s", train, series
+    for period in (10.0, 1.0):
+        train, _truth, series = synthetic_run(1, period)
+        yield f"synthetic-{period:g}s", train, series
+
+
+def main(verbose: bool = False) -> str:
+    from train_calib.paths import bags_dir, track_file, train_file
+    from train_calib.pipeline import run_bag
+    from train_calib.track import load_track
+    from train_calib.train import load_train
+
+    total = hashlib.sha256()
+    t0 = time.perf_counter()
+
+    def add(name: str, data: bytes) -> None:
+        total.update(name.encode())
+        total.update(data)
+        if verbose:
+            print(f"{hashlib.sha256(data).hexdigest()[:16]}  {name}", flush=True)
+
+    runs = list(cases())
+    for bag, (track_name, train_name) in BAGS.items():
+        track, train = load_track(track_file(track_name)), load_train(train_file(train_name))
+        for preset, cfg in PRESETS.items():
+            out = run_bag(bags_dir() / bag, track, train, ukf=cfg, window=False)
+            add(f"bag-{bag}-{preset}-run_bag", series_bytes(EstimateSeries.from_samples(out.estimates)))
+        runs.append((f"bag-{bag}", train, MeasurementSeries.from_measurements(out.measurements)))
+    for name, train, series in runs:
+        for preset, cfg in PRESETS.items():
+            add(f"{name}-{preset}-estimate_run", series_bytes(estimate_run(series, train, cfg)))
+            pub, own = resistance_run(series, train, cfg)
+            add(f"{name}-{preset}-resistance_run", series_bytes(pub) + series_bytes(own))
+            add(f"{name}-{preset}-smooth_run", series_bytes(smooth_run(series, train, cfg)))
+    digest = total.hexdigest()
+    print(f"fingerprint {digest}  ({time.perf_counter() - t0:.0f} s)")
+    return digest
+
+
+if __name__ == "__main__":
+    main("-v" in sys.argv[1:])
