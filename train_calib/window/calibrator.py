@@ -340,7 +340,7 @@ class WindowCalibrator:
         """The step to m in the window's equation (pooled.WindowEquations): the row the fit takes, in Python (one
         StepModel.row per sample), used unless braking (as the fit) or regenerating at either end."""
         step = self._step
-        v, regenerated = float(m.v), float(m.power_regenerated)  # plain floats (numpy scalars are slow)
+        t, v, regenerated = float(t), float(m.v), float(m.power_regenerated)  # plain floats (numpy scalars are slow)
         force = step.force(v, float(m.power_consumed), regenerated) if m.power_valid else math.nan
         sample = (t, v, force, float(m.track_force), float(m.tunnel_fraction), float(m.v_variance), step.limit(v))
         regenerating = bool(m.power_valid) and regenerated > 0.0
