@@ -8,10 +8,10 @@ import numpy as np
 from ..measurement import MeasurementSeries
 from ..train import Davis, TrainSpec
 from .config import UKFConfig
-from .covariance import UPPER_INDEX, cholesky, unpack
-from .records import HEALTH_RESET, EstimateSeries
+from .covariance import UPPER_INDEX, unpack
+from .records import EFFORT_COMPUTED, HEALTH_RESET, EstimateSeries
 from .safeguards import SafeguardConfig
-from .ukf import ResistanceEstimator
+from .ukf import ResistanceEstimator, StepInput, StepResult, running_resistance
 
 
 def estimate_run(
@@ -30,7 +30,6 @@ def estimate_run(
     est = estimator if estimator is not None else ResistanceEstimator(train, config, initial, safeguards)
     n = len(series)
     out = EstimateSeries.empty(n)
-    packed = np.empty((n, 15))
     cols = (
         series.stamp_ns.tolist(),
         series.run_id.tolist(),
@@ -45,23 +44,22 @@ def estimate_run(
         series.power_regenerated.tolist(),
         series.tunnel_fraction.tolist(),
     )
-    rows = [None] * n
-    process = est._process
-    h = est._h
-    for i, args in enumerate(zip(*cols)):
-        rows[i] = process(*args)
-        packed[i] = h.P
+    process = est.process
+    rows = [process(StepInput(*args)) for args in zip(*cols)]
     if n:
-        table = np.array(rows, dtype=float)
+        table = np.array([row[:-1] for row in rows], dtype=float)  # every field but the packed covariance
+        packed = np.array([row.covariance for row in rows], dtype=float)
         out.stamp_ns[:] = series.stamp_ns
         out.run_id[:] = series.run_id
         out.s[:], out.v[:], out.r0[:], out.r1[:], out.r2[:] = table[:, 0:5].T
         out.effort[:], out.acceleration[:], out.resistance[:], out.track_force[:], out.nis[:] = table[:, 5:10].T
-        out.effort_known[:] = table[:, 10] != 0.0
-        out.effort_source[:] = table[:, 10]
-        out.health[:] = table[:, 11]
-        out.dt[:], out.input_effort[:] = table[:, 12], table[:, 13]
-        out.decoupled[:] = table[:, 14] != 0.0
+        source = table[:, StepResult._fields.index("effort_source")]
+        out.effort_known[:] = source != EFFORT_COMPUTED
+        out.effort_source[:] = source
+        out.health[:] = table[:, StepResult._fields.index("health")]
+        out.dt[:] = table[:, StepResult._fields.index("dt")]
+        out.input_effort[:] = table[:, StepResult._fields.index("input_effort")]
+        out.decoupled[:] = table[:, StepResult._fields.index("decoupled")] != 0.0
         out.v_measured[:] = series.v
         out.covariance[:] = packed[:, UPPER_INDEX]
     return out
@@ -83,10 +81,10 @@ def resistance_run(
     health are its own, the other fields the published ones. Without look-ahead the two are the same series.
     """
     est = ResistanceEstimator(train, config, initial, safeguards)
-    if not est._split:
+    if not est.has_lookahead:
         pub = estimate_run(series, train, estimator=est)
         return pub, pub
-    est._trace = trace = []
+    trace = est.record_trace()
     pub = estimate_run(series, train, estimator=est)
     est.flush()
     out = pub.select(np.arange(len(pub)))
@@ -94,12 +92,12 @@ def resistance_run(
     filled = np.zeros(n, dtype=bool)
     state = out.state.copy()
     packed = np.empty((n, 15))
-    for arrival, x, p, u, dt, g, decoupled, known, health in trace:
-        k = arrival - 1  # arrivals count update() calls from 1: one per sample of the series
-        state[k] = x
-        packed[k] = p
-        out.input_effort[k], out.dt[k], out.track_force[k] = u, dt, g
-        out.decoupled[k], out.effort_known[k], out.health[k] = decoupled, known, health
+    for step in trace:
+        k = step.arrival - 1  # arrivals count update() calls from 1: one per sample of the series
+        state[k] = step.x
+        packed[k] = step.covariance
+        out.input_effort[k], out.dt[k], out.track_force[k] = step.input_effort, step.dt, step.track_force
+        out.decoupled[k], out.effort_known[k], out.health[k] = step.decoupled, step.effort_known, step.health
         filled[k] = True
     for k in range(n):  # samples the filter did not use (rejected): its state stays, no step
         if not filled[k]:
@@ -108,7 +106,7 @@ def resistance_run(
             out.dt[k], out.effort_known[k], out.decoupled[k] = 0.0, False, False
     out.s[:], out.v[:], out.r0[:], out.r1[:], out.r2[:] = state.T
     out.covariance[:] = packed[:, UPPER_INDEX]
-    out.resistance[:] = out.r0 + (out.r1 + out.r2 * out.v) * out.v
+    out.resistance[:] = running_resistance(out.r0, out.r1, out.r2, out.v)
     return pub, out
 
 
@@ -137,23 +135,19 @@ def smooth_run(
     xs = fwd.state.copy()
     ps = fwd.covariance.copy()
     iu = np.triu_indices(5)
-    f = est._h
     for k in range(n - 2, -1, -1):
         dt = float(fwd.dt[k + 1])
         if dt <= 0.0 or fwd.run_id[k + 1] != fwd.run_id[k] or fwd.health[k + 1] == HEALTH_RESET:
             continue
         xk = fwd.state[k]
         pk = fwd.covariance[k]
-        f.x = [float(v) for v in xk]
-        f.P = tuple(float(v) for v in pk[iu])
-        chol = cholesky(f.P)
-        if chol is None:
+        u, g, decoupled = float(fwd.input_effort[k + 1]), float(fwd.track_force[k]), bool(fwd.decoupled[k + 1])
+        pred = est.predict(tuple(float(v) for v in xk), tuple(float(v) for v in pk[iu]), dt, u, g, decoupled)
+        if pred is None:
             continue
-        f.L = chol
-        est._predict(f, dt, float(fwd.input_effort[k + 1]), float(fwd.track_force[k]), bool(fwd.decoupled[k + 1]))
-        x_bar = np.array(f.x)
-        p_bar = unpack(f.P)
-        m = np.array(f.m)
+        x_bar = np.array(pred.x)
+        p_bar = unpack(pred.covariance)
+        m = np.array(pred.m)
         b = np.array([0.5 * dt * dt, dt, 0.0, 0.0, 0.0])
         cross = pk.copy()
         cross[:, 0] += dt * pk[:, 1]  # P A^T
@@ -168,7 +162,7 @@ def smooth_run(
     xs[:, 1:] = np.maximum(xs[:, 1:], 0.0)
     out.s[:], out.v[:], out.r0[:], out.r1[:], out.r2[:] = xs.T
     out.covariance[:] = ps
-    out.resistance[:] = out.r0 + (out.r1 + out.r2 * out.v) * out.v
+    out.resistance[:] = running_resistance(out.r0, out.r1, out.r2, out.v)
     if not np.all(np.isfinite(xs)):
         raise FloatingPointError("smoother produced non-finite states")
     return out

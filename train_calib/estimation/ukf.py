@@ -40,6 +40,7 @@ from __future__ import annotations
 import math
 from collections import deque
 from functools import lru_cache
+from typing import NamedTuple
 
 import numpy as np
 from scipy.stats import chi2
@@ -100,6 +101,113 @@ def worse(a: int, b: int) -> int:
     """The more severe of two health flags: RESET over REPAIRED over DEGRADED over OK (as one filter step sets
     them: an inconsistent NIS window flags DEGRADED only when nothing else happened)."""
     return a if _SEVERITY[a] >= _SEVERITY[b] else b
+
+
+def running_resistance(r0: float, r1: float, r2: float, v: float) -> float:
+    """Davis running resistance r(v) = r0 + r1 v + r2 v^2 in Horner form, N/kg (v in m/s; numpy arrays too)."""
+    return r0 + (r1 + r2 * v) * v
+
+
+class StepInput(NamedTuple):
+    """One measurement as the filter takes it: the fields of :class:`Measurement` it uses, SI units."""
+
+    stamp_ns: int
+    run_id: int
+    s: float  # position along the track, m (NaN: not measured)
+    v: float  # speed, m/s
+    track_force: float  # g(s), N/kg
+    s_measured: bool
+    s_variance: float  # m^2
+    v_variance: float  # (m/s)^2
+    power_valid: bool
+    power_consumed: float  # W
+    power_regenerated: float  # W
+    tunnel_fraction: float = 0.0  # share of the train inside a tunnel, 0..1
+
+    @classmethod
+    def from_measurement(cls, m: Measurement) -> StepInput:
+        return cls(int(m.stamp_ns), int(m.run_id), float(m.s), float(m.v), float(m.track_force), bool(m.s_measured),
+                   float(m.s_variance), float(m.v_variance), bool(m.power_valid), float(m.power_consumed),
+                   float(m.power_regenerated), float(m.tunnel_fraction))  # fmt: skip
+
+
+class StepResult(NamedTuple):
+    """The published estimate after one measurement (:meth:`ResistanceEstimator.process`), SI units."""
+
+    s: float  # m
+    v: float  # m/s
+    r0: float  # N/kg
+    r1: float  # N/(kg m/s)
+    r2: float  # N/(kg (m/s)^2)
+    effort: float  # published applied effort u = f_t - f_b, N/kg
+    acceleration: float  # causal fit of the measured speeds, m/s^2
+    resistance: float  # r(v) at the estimate, N/kg
+    track_force: float  # g(s) of the measurement, N/kg
+    nis: float  # normalised innovation squared of the update (0 without one)
+    effort_source: int  # EFFORT_COMPUTED (0: not known) or the known effort's source, EFFORT_*
+    health: int  # HEALTH_*
+    dt: float  # s since the previous measurement (0: no prediction)
+    input_effort: float  # the effort u the prediction used, N/kg
+    decoupled: bool  # the prediction used r at its mean (consider step)
+    covariance: tuple[float, ...]  # packed upper triangle over (s, v, r0, r1, r2), covariance.UPPER_INDEX
+
+
+class TraceStep(NamedTuple):
+    """One step of the resistance filter (:meth:`ResistanceEstimator.record_trace`), SI units."""
+
+    arrival: int  # the update() call (counted from 1) whose measurement the step used
+    x: tuple[float, ...]  # (s, v, r0, r1, r2) after the step
+    covariance: tuple[float, ...]  # packed upper triangle after the step
+    input_effort: float  # effort u the prediction used, N/kg
+    dt: float  # s (0: first sample of a run or after a gap)
+    track_force: float  # g(s) of the measurement, N/kg
+    decoupled: bool  # the prediction used r at its mean (consider step)
+    effort_known: bool  # u was known (power or confirmed coasting)
+    health: int  # HEALTH_*
+
+
+class Prediction(NamedTuple):
+    """The resistance filter's unscented prediction (:meth:`ResistanceEstimator.predict`)."""
+
+    x: tuple[float, ...]  # predicted mean (s, v, r0, r1, r2)
+    covariance: tuple[float, ...]  # packed predicted covariance (Q included)
+    m: tuple[float, ...]  # cross-covariance of the state and the acceleration a (the smoother's P A^T term)
+
+
+class PendingStep(NamedTuple):
+    """A measurement the published filter has used and the resistance filter has not yet (look-ahead)."""
+
+    index: int  # sample of the run (confirmation windows are numbered by it)
+    t: float  # stamp, s
+    dt: float  # s since the previous measurement
+    zs: float  # measured position, m
+    zv: float  # measured speed, m/s
+    zv_prev: float  # previous measured speed, m/s
+    g_prev: float  # track force at the start of the step, N/kg
+    g: float  # track force of this measurement, N/kg
+    s_measured: bool  # the position was used (after the gate)
+    rs: float  # position variance, m^2
+    rv: float  # speed variance, (m/s)^2
+    coast_provisional: bool  # may coast, and the confirmation window up to the previous sample passed
+    power_u: float | None  # effort from the measured power, N/kg (None: not known from the power)
+    power_kind: str | None  # its counter ("known_effort_power", "known_effort_power_coast")
+    relock: bool  # the published filter re-initialised s here (position relock)
+    nis_reset: bool  # the published filter restarted s and v here (NIS rule)
+    arrival: int  # the update() call (counted from 1)
+    output_used_coast: bool  # the published filter took u = 0 as known here
+
+
+class _Effort(NamedTuple):
+    """The effort decision of one step of the published filter."""
+
+    effort: float  # published effort, N/kg
+    input_effort: float  # effort the prediction used, N/kg
+    acceleration: float  # causal acceleration of the speeds, m/s^2
+    source: int = EFFORT_COMPUTED
+    decoupled: bool = False
+    coast_provisional: bool = False
+    power_u: float | None = None
+    power_kind: str | None = None
 
 
 class _Filter:
@@ -171,10 +279,12 @@ class ResistanceEstimator:
         self._coast_slope = SpeedSlope(cfg.coast_confirm_time)
         self._coast_span = (1.0 - _JITTER) * cfg.coast_confirm_time - 1e-6
         self._ahead = cfg.coast_confirm_ahead if self._exploit else 0.0
-        self._split = self._ahead > 0.0
+        self._lookahead = self._ahead > 0.0
         self._ahead_span = (1.0 - _JITTER) * self._ahead - 1e-6
         # look-ahead windows are tested from half the confirmation time on (own windows need all of it)
-        self._ahead_test_span = min(self._coast_span, 0.5 * cfg.coast_confirm_time) if self._split else self._coast_span
+        self._ahead_test_span = (
+            min(self._coast_span, 0.5 * cfg.coast_confirm_time) if self._lookahead else self._coast_span
+        )
         self._nis_limit = _nis_limits(cfg.nis_quantile, cfg.nis_window)
         self._gate = _chi2_quantile(cfg.known_effort_gate, 1) if cfg.known_effort_gate < 1.0 else math.inf
         self._position_gate = _chi2_quantile(guard.position_gate, 1) if guard.position_gate < 1.0 else math.inf
@@ -206,9 +316,9 @@ class ResistanceEstimator:
         }
         self.rejected: str | None = None  # why the latest measurement was not used (None: it was)
         self._h = _Filter()  # the published (output) filter
-        self._rf = _Filter() if self._split else self._h  # the resistance filter (the same one without look-ahead)
-        self._pending: deque[tuple] = deque()  # measurements the resistance filter has not used yet
-        self._trace: list[tuple] | None = None  # resistance_run: the resistance filter's steps
+        self._rf = _Filter() if self._lookahead else self._h  # the resistance filter (the same one without look-ahead)
+        self._pending: deque[PendingStep] = deque()  # measurements the resistance filter has not used yet
+        self._trace: list[TraceStep] | None = None  # record_trace(): the resistance filter's steps
         self._keep_next = False
         self._run_id: int | None = None
         self._reset_run_state()
@@ -228,7 +338,7 @@ class ResistanceEstimator:
         h, rf = self._h, self._rf
         if h.x is None or rf.x is None:
             return np.full((5, 5), np.nan)
-        return unpack(self._published_cov() if self._split else h.P)
+        return unpack(self._published_cov() if self._lookahead else h.P)
 
     @property
     def davis(self) -> Davis:
@@ -272,47 +382,64 @@ class ResistanceEstimator:
         recording): their coasting is not confirmed (computed effort), measured traction power is used."""
         while self._pending:
             self._resistance_step(self._pending.popleft(), False)
-        if self._split and self._h.x is not None and self._rf.x is not None:
+        if self._lookahead and self._h.x is not None and self._rf.x is not None:
             self._sync()
 
     def update(self, m: Measurement) -> EstimateSample:
         """Process one measurement; returns the estimate after it."""
-        out = self._process(
-            int(m.stamp_ns),
-            int(m.run_id),
-            float(m.s),
-            float(m.v),
-            float(m.track_force),
-            bool(m.s_measured),
-            float(m.s_variance),
-            float(m.v_variance),
-            bool(m.power_valid),
-            float(m.power_consumed),
-            float(m.power_regenerated),
-            float(m.tunnel_fraction),
-        )
-        s, v, r0, r1, r2, effort, accel, resistance, g, nis, source, health, dt, u_in, _ = out
+        r = self.process(StepInput.from_measurement(m))
         return EstimateSample(
             stamp_ns=int(m.stamp_ns),
             run_id=int(m.run_id),
-            s=s,
-            v=v,
-            r0=r0,
-            r1=r1,
-            r2=r2,
-            covariance=unpack(self._h.P),
-            effort=effort,
-            acceleration=accel,
-            resistance=resistance,
-            track_force=g,
-            nis=nis,
-            effort_known=source != EFFORT_COMPUTED,
-            health=health,
-            dt=dt,
-            input_effort=u_in,
+            s=r.s,
+            v=r.v,
+            r0=r.r0,
+            r1=r.r1,
+            r2=r.r2,
+            covariance=unpack(r.covariance),
+            effort=r.effort,
+            acceleration=r.acceleration,
+            resistance=r.resistance,
+            track_force=r.track_force,
+            nis=r.nis,
+            effort_known=r.effort_source != EFFORT_COMPUTED,
+            health=r.health,
+            dt=r.dt,
+            input_effort=r.input_effort,
             v_measured=float(m.v),
-            effort_source=int(source),
+            effort_source=int(r.effort_source),
         )
+
+    @property
+    def has_lookahead(self) -> bool:
+        """True when the resistance filter runs ``coast_confirm_ahead`` behind the published one (two filters)."""
+        return self._lookahead
+
+    def record_trace(self) -> list[TraceStep]:
+        """Start recording the resistance filter's steps (one :class:`TraceStep` per measurement it uses, its own
+        state and covariance after the step and the effort it used); returns the list, also ``trace``. Only with
+        look-ahead: without it the resistance filter is the published one (``process``)."""
+        self._trace = []
+        return self._trace
+
+    @property
+    def trace(self) -> list[TraceStep] | None:
+        """The resistance filter's steps since ``record_trace()`` (None when not recording)."""
+        return self._trace
+
+    def predict(
+        self, x: tuple[float, ...], covariance: tuple[float, ...], dt: float, u: float, g: float, decoupled: bool
+    ) -> Prediction | None:
+        """The resistance filter's closed-form unscented prediction from mean x (s, v, r0, r1, r2) and packed
+        covariance over dt s with effort u and track force g (N/kg); ``decoupled``: r at its mean (consider step).
+        None when the covariance is not positive definite. The filter's own state is not touched."""
+        chol = cholesky(covariance)
+        if chol is None:
+            return None
+        f = _Filter()
+        f.x, f.P, f.L = list(x), tuple(covariance), chol
+        self._predict(f, dt, u, g, decoupled)
+        return Prediction(tuple(f.x), f.P, f.m)
 
     # -- internals ------------------------------------------------------------------------------
     def _reset_run_state(self) -> None:
@@ -353,7 +480,7 @@ class ResistanceEstimator:
         """(Re)start both filters at the measurement (run start, gap); keep: r and its covariance block (times
         inflation) from the resistance filter."""
         self._initialise_filter(self._h, zs, zv, keep, inflation)
-        if self._split:
+        if self._lookahead:
             self._rf.assign(self._h)
 
     def _initialise_filter(self, f: _Filter, zs: float, zv: float, keep: bool, inflation: float = 1.0) -> None:
@@ -382,7 +509,7 @@ class ResistanceEstimator:
     def _take_coast_resistance(self) -> None:
         """Both filters take the coast regression's r and r covariance (no cross-covariance with s, v)."""
         r, c = self._coast.r, self._coast.covariance
-        for f in (self._h, self._rf) if self._split else (self._h,):
+        for f in (self._h, self._rf) if self._lookahead else (self._h,):
             if f.x is None:
                 continue
             f.x[2], f.x[3], f.x[4] = float(r[0]), float(r[1]), float(r[2])
@@ -441,156 +568,201 @@ class ResistanceEstimator:
                     return HEALTH_OK
         return self._set_cov(h, p)
 
-    def _process(
-        self,
-        stamp_ns: int,
-        run_id: int,
-        zs: float,
-        zv: float,
-        g: float,
-        s_measured: bool,
-        s_var: float,
-        v_var: float,
-        power_valid: bool,
-        power_consumed: float,
-        power_regen: float,
-        tunnel_fraction: float = 0.0,
-    ) -> tuple:
-        cfg = self.config
-        counters = self.counters
-        counters["updates"] += 1
-        health = HEALTH_OK
-        self.rejected = None
-        h = self._h
-        if not (math.isfinite(zv) and math.isfinite(g)):
-            self.rejected = "nan"
-        elif zv < 0.0:
-            self.rejected = "negative_speed"
-        elif zv > MAX_SPEED or abs(g) > MAX_TRACK_FORCE:
-            self.rejected = "implausible"
-        elif h.x is not None and run_id == self._run_id and stamp_ns < self._last_stamp:
-            self.rejected = "out_of_order"
+    # -- one measurement, job by job ----------------------------------------------------------------
+    def process(self, m: StepInput) -> StepResult:
+        """Process one measurement (``update`` without building the EstimateSample): reject or repair the input,
+        start a run or restart after a gap, else one filter step (effort, prediction, update, safeguards,
+        look-ahead bookkeeping). Returns the estimate after it."""
+        self.counters["updates"] += 1
+        self.rejected = self._rejection(m)
         if self.rejected is not None:
-            return self._rejected(stamp_ns)
-        if not abs(zs) <= MAX_POSITION:  # NaN too: no position, a speed-only update
-            if math.isfinite(zs):
+            return self._rejected(m.stamp_ns)
+        m = self._repaired(m)
+        if self._coast is not None and self._coast.push(m.stamp_ns * 1e-9, m.v, m.track_force, m.tunnel_fraction,
+                                                        m.run_id):  # fmt: skip
+            self._take_coast_resistance()
+        if self._h.x is None or m.run_id != self._run_id:
+            return self._start_run(m)
+        dt = (m.stamp_ns - self._last_stamp) * 1e-9
+        if dt > self.config.max_dt:
+            return self._restart_after_gap(m)
+        return self._step(m, dt)
+
+    def _rejection(self, m: StepInput) -> str | None:
+        """Why the measurement cannot be used (``rejected``), or None."""
+        if not (math.isfinite(m.v) and math.isfinite(m.track_force)):
+            return "nan"
+        if m.v < 0.0:
+            return "negative_speed"
+        if m.v > MAX_SPEED or abs(m.track_force) > MAX_TRACK_FORCE:
+            return "implausible"
+        if self._h.x is not None and m.run_id == self._run_id and m.stamp_ns < self._last_stamp:
+            return "out_of_order"
+        return None
+
+    def _repaired(self, m: StepInput) -> StepInput:
+        """The measurement with what the filter cannot use replaced (counted in ``input_repaired``): a position that
+        is not one (NaN too: a speed-only update), a variance out of VARIANCE_RANGE (the configured one), a power
+        that is not a power (no power measurement)."""
+        counters = self.counters
+        h = self._h
+        if not abs(m.s) <= MAX_POSITION:  # NaN too: no position, a speed-only update
+            if math.isfinite(m.s):
                 counters["input_repaired"] += 1
-            s_measured = False
-            zs = h.x[0] if h.x is not None and run_id == self._run_id else 0.0
+            m = m._replace(s_measured=False, s=h.x[0] if h.x is not None and m.run_id == self._run_id else 0.0)
         lo_var, hi_var = VARIANCE_RANGE
+        s_var, v_var = m.s_variance, m.v_variance
         if not (lo_var <= s_var <= hi_var and lo_var <= v_var <= hi_var):
             counters["input_repaired"] += 1  # a variance the filter cannot use: the configured one
-            s_var = s_var if lo_var <= s_var <= hi_var else self._rs
-            v_var = v_var if lo_var <= v_var <= hi_var else self._rv
-        if power_valid and not (0.0 <= power_consumed <= MAX_POWER and 0.0 <= power_regen <= MAX_POWER):
+            m = m._replace(s_variance=s_var if lo_var <= s_var <= hi_var else self._rs,
+                           v_variance=v_var if lo_var <= v_var <= hi_var else self._rv)  # fmt: skip
+        if m.power_valid and not (0.0 <= m.power_consumed <= MAX_POWER and 0.0 <= m.power_regenerated <= MAX_POWER):
             counters["input_repaired"] += 1  # power that is not a power is no power measurement
-            power_valid, power_consumed, power_regen = False, 0.0, 0.0
-        if self._coast is not None and self._coast.push(stamp_ns * 1e-9, zv, g, tunnel_fraction, run_id):
-            self._take_coast_resistance()
-        # ---- run start / gap --------------------------------------------------------------------
-        if h.x is None or run_id != self._run_id:
-            keep = h.x is not None and (self._keep_next or cfg.carry_over == "keep")
-            self.flush()
-            self._reset_run_state()
-            self._initialise(zs, zv, keep, cfg.carry_over_inflation)
-            self._keep_next = False
-            self._run_id = run_id
-            counters["runs"] += 1
-            return self._first_sample(stamp_ns, zs, zv, g, power_valid, power_consumed, power_regen, health)
-        dt = (stamp_ns - self._last_stamp) * 1e-9
-        if dt > cfg.max_dt:
-            counters["gaps"] += 1
-            counters["resets"] += 1
-            self.flush()
-            self._reset_run_state()
-            self._initialise(zs, zv, True)
-            return self._first_sample(stamp_ns, zs, zv, g, power_valid, power_consumed, power_regen, HEALTH_RESET)
+            m = m._replace(power_valid=False, power_consumed=0.0, power_regenerated=0.0)
+        return m
 
-        split = self._split
-        x = h.x
-        zv_prev = self._zv_prev
-        g_prev = self._g_prev
-        t = stamp_ns * 1e-9
-        a_obs = self._slope.push(t, zv)
-        if cfg.use_measurement_variance:
-            rs, rv = s_var, v_var
-        else:
-            rs, rv = self._rs, self._rv
-        known = decoupled = coast_eligible = provisional = False
-        power_u = power_kind = None
+    def _start_run(self, m: StepInput) -> StepResult:
+        """A new run_id (or the first measurement): the waiting measurements are used, both filters restart at the
+        measurement, r from the prior or carried over (``carry_over``)."""
+        cfg = self.config
+        keep = self._h.x is not None and (self._keep_next or cfg.carry_over == "keep")
+        self.flush()
+        self._reset_run_state()
+        self._initialise(m.s, m.v, keep, cfg.carry_over_inflation)
+        self._keep_next = False
+        self._run_id = m.run_id
+        self.counters["runs"] += 1
+        return self._first_sample(m, HEALTH_OK)
+
+    def _restart_after_gap(self, m: StepInput) -> StepResult:
+        """dt > ``max_dt``: s and v restart at the measurement, r and its covariance are kept (health RESET)."""
+        self.counters["gaps"] += 1
+        self.counters["resets"] += 1
+        self.flush()
+        self._reset_run_state()
+        self._initialise(m.s, m.v, True)
+        return self._first_sample(m, HEALTH_RESET)
+
+    def _step(self, m: StepInput, dt: float) -> StepResult:
+        """One filter step of the published (output) filter after dt s; with look-ahead the resistance filter then
+        catches up on the steps whose coasting is decided."""
+        cfg = self.config
+        t = m.stamp_ns * 1e-9
+        a_obs = self._slope.push(t, m.v)
+        rs, rv = (m.s_variance, m.v_variance) if cfg.use_measurement_variance else (self._rs, self._rv)
         if dt > 0.0:
-            # ---- applied effort ---------------------------------------------------------------
-            dz = zv - zv_prev
-            v = x[1]
-            v_ref = v + 0.5 * dz if self._midpoint else v
-            r_ref = x[2] + (x[3] + x[4] * v_ref) * v_ref
-            effort = a_obs + r_ref + g_prev
-            u = dz / dt + r_ref + g_prev
-            if self._exploit and zv_prev >= cfg.known_effort_min_speed and zv >= cfg.known_effort_min_speed:
-                traction = None
-                pv0, pc0, pr0 = self._pw_prev
-                if cfg.use_power and pv0 and power_valid:
-                    if pr0 > 0.0 or power_regen > 0.0:
-                        traction = False  # electric braking: f_b unknown (blended)
-                        counters["power_regenerating"] += 1
-                    else:
-                        w0 = self._power.wheel_power(pc0)
-                        w1 = self._power.wheel_power(power_consumed)
-                        if w0 > cfg.power_threshold and w1 > cfg.power_threshold:
-                            power_u = 0.5 * (w0 / zv_prev + w1 / zv)
-                            power_kind = "known_effort_power"
-                        elif w0 > cfg.power_threshold or w1 > cfg.power_threshold:
-                            traction = False  # traction switched within the step
-                        elif effort > -4.0 * cfg.coast_effort_tolerance:
-                            if cfg.power_coasting:
-                                power_u = 0.0  # no traction, no electric brake, not clearly braking: coasting
-                                power_kind = "known_effort_power_coast"
-                        else:
-                            counters["power_braking_unseen"] += 1  # the speeds brake, the power shows no brake
-                coast_eligible = power_u is None and traction is None
-            known_u, kind = power_u, power_kind
-            if coast_eligible and self._coast_pass:  # the confirmation window up to the previous sample
-                known_u, kind = 0.0, "known_effort_coast"
-                provisional = True
-            if known_u is not None:
-                if self._known_predict(h, dt, known_u, g_prev, zv, rv, split):
-                    known = _SOURCE[kind]  # the effort source, truthy (EFFORT_COMPUTED, 0, is "not known")
-                    u = effort = known_u
-                    if not split:
-                        counters[kind] += 1
-                elif not split:
-                    counters["known_effort_rejected"] += 1
-            decoupled = self._decouple and not known
-            if not known:
-                if split:
-                    self._predict_output(h, dt, u, g_prev, not self._decouple)
-                else:
-                    self._predict(h, dt, u, g_prev, decoupled)
-            self._last_effort, self._last_accel, self._last_input = effort, a_obs, u
+            eff = self._predict_published(m, dt, a_obs, rv)
         else:
-            counters["nonpositive_dt"] += 1
+            self.counters["nonpositive_dt"] += 1
             dt = 0.0
-            effort, u = self._last_effort, self._last_input
-            a_obs = self._last_accel
-        # ---- measurement update ---------------------------------------------------------------------
+            eff = _Effort(self._last_effort, self._last_input, self._last_accel)
+        s_measured, health, nis, dof = self._measure(m, rs, rv, dt, eff.decoupled)
+        health, nis, nis_reset = self._safeguard(m.s, m.v, health, nis, dof)
+        zv_prev, g_prev = self._zv_prev, self._g_prev
+        self._remember(m)
+        if self._exploit:
+            self._coast_confirmation(t, m.v, self._h.x[1], m.track_force)
+        if self._lookahead:
+            used_coast = eff.coast_provisional and eff.source != EFFORT_COMPUTED
+            step = PendingStep(self._index, t, dt, m.s, m.v, zv_prev, g_prev, m.track_force, s_measured, rs, rv,
+                               eff.coast_provisional, eff.power_u, eff.power_kind, self._relocked, nis_reset,
+                               self.counters["updates"], used_coast)  # fmt: skip
+            health = worse(health, self._look_ahead(step))
+        return self._result(eff, m.track_force, nis, health, dt)
+
+    def _predict_published(self, m: StepInput, dt: float, a_obs: float, rv: float) -> _Effort:
+        """The applied effort of the step and the prediction of the published filter with it: the effort computed
+        from the speed change (Cunillera eq. 1) unless a known one (power, confirmed coasting) passes the gate."""
+        counters = self.counters
+        h = self._h
+        x = h.x
+        zv, zv_prev, g_prev = m.v, self._zv_prev, self._g_prev
+        dz = zv - zv_prev
+        v = x[1]
+        r_ref = running_resistance(x[2], x[3], x[4], v + 0.5 * dz if self._midpoint else v)
+        effort = a_obs + r_ref + g_prev
+        u = dz / dt + r_ref + g_prev
+        power_u, power_kind, coast_eligible = self._known_effort(m, zv_prev, effort)
+        known_u, kind = power_u, power_kind
+        provisional = False
+        if coast_eligible and self._coast_pass:  # the confirmation window up to the previous sample
+            known_u, kind = 0.0, "known_effort_coast"
+            provisional = True
+        source = EFFORT_COMPUTED
+        if known_u is not None:
+            if self._known_predict(h, dt, known_u, g_prev, zv, rv, self._lookahead):
+                source = _SOURCE[kind]
+                u = effort = known_u
+                if not self._lookahead:
+                    counters[kind] += 1
+            elif not self._lookahead:
+                counters["known_effort_rejected"] += 1
+        decoupled = self._decouple and source == EFFORT_COMPUTED
+        if source == EFFORT_COMPUTED:
+            if self._lookahead:
+                self._predict_output(h, dt, u, g_prev, not self._decouple)
+            else:
+                self._predict(h, dt, u, g_prev, decoupled)
+        self._last_effort, self._last_accel, self._last_input = effort, a_obs, u
+        return _Effort(effort, u, a_obs, source, decoupled, provisional, power_u, power_kind)
+
+    def _known_effort(self, m: StepInput, zv_prev: float, effort: float) -> tuple[float | None, str | None, bool]:
+        """The effort decision from the power (``exploit_known``, both speeds above ``known_effort_min_speed``):
+        (u from the power or None, its counter name or None, whether the step may be a coasting step)."""
+        cfg = self.config
+        if not (self._exploit and zv_prev >= cfg.known_effort_min_speed and m.v >= cfg.known_effort_min_speed):
+            return None, None, False
+        counters = self.counters
+        power_u = power_kind = traction = None
+        pv0, pc0, pr0 = self._pw_prev
+        if cfg.use_power and pv0 and m.power_valid:
+            if pr0 > 0.0 or m.power_regenerated > 0.0:
+                traction = False  # electric braking: f_b unknown (blended)
+                counters["power_regenerating"] += 1
+            else:
+                w0 = self._power.wheel_power(pc0)
+                w1 = self._power.wheel_power(m.power_consumed)
+                if w0 > cfg.power_threshold and w1 > cfg.power_threshold:
+                    power_u = 0.5 * (w0 / zv_prev + w1 / m.v)
+                    power_kind = "known_effort_power"
+                elif w0 > cfg.power_threshold or w1 > cfg.power_threshold:
+                    traction = False  # traction switched within the step
+                elif effort > -4.0 * cfg.coast_effort_tolerance:
+                    if cfg.power_coasting:
+                        power_u = 0.0  # no traction, no electric brake, not clearly braking: coasting
+                        power_kind = "known_effort_power_coast"
+                else:
+                    counters["power_braking_unseen"] += 1  # the speeds brake, the power shows no brake
+        return power_u, power_kind, power_u is None and traction is None
+
+    def _measure(self, m: StepInput, rs: float, rv: float, dt: float, decoupled: bool) -> tuple[bool, int, float, int]:
+        """The measurement update of the published filter after the position gate: (position used, health, NIS,
+        its degrees of freedom); a gated position counts in the NIS as an inconsistent innovation."""
+        s_measured = m.s_measured
+        health = HEALTH_OK
         if not s_measured:
-            counters["position_missing"] += 1
+            self.counters["position_missing"] += 1
         gated_nis = 0.0
         self._relocked = False
         if s_measured:
-            s_measured, health, gated_nis = self._gate_position(stamp_ns, zs, rs, dt, health)
-        if split:
-            nis, dof = self._update_output(h, zs, zv, rs, rv, s_measured, dt)
+            s_measured, health, gated_nis = self._gate_position(m.stamp_ns, m.s, rs, dt, health)
+        if self._lookahead:
+            nis, dof = self._update_output(self._h, m.s, m.v, rs, rv, s_measured, dt)
         else:
-            nis, dof = self._update(h, zs, zv, rs, rv, s_measured, dt, decoupled)
+            nis, dof = self._update(self._h, m.s, m.v, rs, rv, s_measured, dt, decoupled)
         if gated_nis:  # a gated position is an inconsistent innovation: it counts in the NIS window
             nis, dof = nis + gated_nis, dof + 1
-        # ---- safeguards -------------------------------------------------------------------------------
+        return s_measured, health, nis, dof
+
+    def _safeguard(self, zs: float, zv: float, health: int, nis: float, dof: int) -> tuple[int, float, bool]:
+        """After the update of the published filter: reset on NaN/inf, bounds (v >= 0; without look-ahead r >= 0 and
+        the covariance check), the NIS window (DEGRADED, or the NIS reset rule). Returns (health, NIS, NIS reset)."""
+        h = self._h
         x = h.x
         if not math.isfinite(sum(x) + sum(h.P) + nis):  # NaN or inf anywhere
             health = self._hard_reset(zs, zv)
             nis, dof = 0.0, 0
-        elif split:
+        elif self._lookahead:
             if x[1] < 0.0:  # r is the resistance filter's: only the speed bound here
                 x[1] = 0.0
         else:
@@ -605,47 +777,38 @@ class ResistanceEstimator:
                 nis_reset = True
             elif health == HEALTH_OK:
                 health = HEALTH_DEGRADED
-                counters["degraded"] += 1
+                self.counters["degraded"] += 1
         else:
             self._degraded_steps = 0
-        self._last_stamp = stamp_ns
-        self._zv_prev = zv
-        self._g_prev = g
-        self._pw_prev = (power_valid, power_consumed, power_regen)
-        if self._exploit:
-            self._coast_confirmation(t, zv, h.x[1], g)
-        if split:
-            self._pending.append(
-                (
-                    self._index,
-                    t,
-                    dt,
-                    zs,
-                    zv,
-                    zv_prev,
-                    g_prev,
-                    g,
-                    s_measured,
-                    rs,
-                    rv,
-                    provisional,  # coast_eligible: coasting eligible and the window up to the previous sample passed
-                    power_u,
-                    power_kind,
-                    self._relocked,
-                    nis_reset,
-                    counters["updates"],
-                    provisional and known,  # output_used_coast: the output filter took u = 0 as known here
-                )
-            )
-            health = worse(health, worse(self._advance(t), self._sync()))
+        return health, nis, nis_reset
+
+    def _remember(self, m: StepInput) -> None:
+        """What the next step needs of this measurement: stamp, speed, track force, power."""
+        self._last_stamp = m.stamp_ns
+        self._zv_prev = m.v
+        self._g_prev = m.track_force
+        self._pw_prev = (m.power_valid, m.power_consumed, m.power_regenerated)
+
+    def _look_ahead(self, step: PendingStep) -> int:
+        """Queue the step for the resistance filter, let it use the steps whose look-ahead is complete, and give the
+        published filter its r. Returns the worst health of both."""
+        self._pending.append(step)
+        return worse(self._advance(step.t), self._sync())
+
+    def _result(self, eff: _Effort, g: float, nis: float, health: int, dt: float) -> StepResult:
+        """The published estimate after the step (on the step that needed a reset: the effort of the restarted
+        state)."""
+        h = self._h
         x = h.x
         vf = x[1]
-        resistance = x[2] + (x[3] + x[4] * vf) * vf
-        if not math.isfinite(effort + a_obs + u):  # the step that needed a reset: the effort of the restarted state
+        resistance = running_resistance(x[2], x[3], x[4], vf)
+        effort, a_obs, u = eff.effort, eff.acceleration, eff.input_effort
+        if not math.isfinite(effort + a_obs + u):
             a_obs = a_obs if math.isfinite(a_obs) else 0.0
             effort = u = a_obs + resistance + g
             self._last_effort, self._last_accel, self._last_input = effort, a_obs, u
-        return (x[0], vf, x[2], x[3], x[4], effort, a_obs, resistance, g, nis, known, health, dt, u, decoupled)
+        return StepResult(x[0], vf, x[2], x[3], x[4], effort, a_obs, resistance, g, nis, eff.source, health, dt, u,
+                          eff.decoupled, h.P)  # fmt: skip
 
     def _coast_confirmation(self, t: float, zv: float, v: float, g: float) -> None:
         """Push the sample into the confirmation window and test the window ending here: covered, the speeds on a
@@ -680,29 +843,29 @@ class ResistanceEstimator:
         pending = self._pending
         horizon = t - self._ahead_span
         health = HEALTH_OK
-        while pending and pending[0][1] <= horizon:
-            item = pending.popleft()
-            health = worse(health, self._resistance_step(item, item[11] and self._last_fail < item[0] - 1))
+        while pending and pending[0].t <= horizon:
+            step = pending.popleft()
+            confirmed = step.coast_provisional and self._last_fail < step.index - 1
+            health = worse(health, self._resistance_step(step, confirmed))
         return health
 
-    def _resistance_step(self, item: tuple, confirmed: bool) -> int:
+    def _resistance_step(self, step: PendingStep, confirmed: bool) -> int:
         """One step of the resistance filter (the same UKF step as the output filter's, on the decided effort)."""
-        (_, _, dt, zs, zv, zv_prev, g_prev, g, s_measured, rs, rv, coast_eligible, power_u, kind, relock, nis_reset,
-         arrival, output_used_coast) = item  # fmt: skip
         f = self._rf
         counters = self.counters
         known = decoupled = False
         u = 0.0
+        dt, zs, zv, g_prev, rs, rv = step.dt, step.zs, step.zv, step.g_prev, step.rs, step.rv
         if dt > 0.0:
             x = f.x
-            dz = zv - zv_prev
+            dz = zv - step.zv_prev
             v_ref = x[1] + 0.5 * dz if self._midpoint else x[1]
-            u = dz / dt + x[2] + (x[3] + x[4] * v_ref) * v_ref + g_prev
-            known_u = power_u
-            if known_u is None and coast_eligible:
+            u = dz / dt + x[2] + (x[3] + x[4] * v_ref) * v_ref + g_prev  # (dz/dt + r0) + ...: kept for bit-identity
+            known_u, kind = step.power_u, step.power_kind
+            if known_u is None and step.coast_provisional:
                 if confirmed:
                     known_u, kind = 0.0, "known_effort_coast"
-                elif output_used_coast:
+                elif step.output_used_coast:
                     counters["coast_unconfirmed"] += 1
             if known_u is not None:
                 if self._known_predict(f, dt, known_u, g_prev, zv, rv):
@@ -714,20 +877,20 @@ class ResistanceEstimator:
             decoupled = self._decouple and not known
             if not known:
                 self._predict(f, dt, u, g_prev, decoupled)
-        if relock:  # the output filter re-initialised s at this measurement
+        if step.relock:  # the output filter re-initialised s at this measurement
             f.x[0] = zs
             p = list(f.P)
             p[0], p[1], p[2], p[3], p[4] = rs, 0.0, 0.0, 0.0, 0.0
             f.P = tuple(p)
-        nis, _ = self._update(f, zs, zv, rs, rv, s_measured, dt, decoupled)
+        nis, _ = self._update(f, zs, zv, rs, rv, step.s_measured, dt, decoupled)
         if not math.isfinite(sum(f.x) + sum(f.P) + nis):
             health = self._hard_reset_filter(f, zs, zv)
         else:
             health = self._project_and_check(f, zs, zv)
-        if nis_reset:  # the output filter restarted s and v here (NIS rule)
+        if step.nis_reset:  # the output filter restarted s and v here (NIS rule)
             self._restart_speed(f, zs, zv)
         if self._trace is not None:
-            self._trace.append((arrival, tuple(f.x), f.P, u, dt, g, decoupled, known, health))
+            self._trace.append(TraceStep(step.arrival, tuple(f.x), f.P, u, dt, step.g, decoupled, known, health))
         return health
 
     def _known_predict(
@@ -747,24 +910,23 @@ class ResistanceEstimator:
         f.P, f.L, f.m, f.q_sv = saved[1], saved[2], saved[3], saved[4]
         return False
 
-    def _first_sample(self, stamp_ns, zs, zv, g, power_valid, pc, pr, health) -> tuple:
-        t = stamp_ns * 1e-9
-        self._slope.push(t, zv)
+    def _first_sample(self, m: StepInput, health: int) -> StepResult:
+        """The estimate at the first measurement of a run or after a gap (no prediction, no update)."""
+        t = m.stamp_ns * 1e-9
+        self._slope.push(t, m.v)
         if self._exploit:
-            self._coast_confirmation(t, zv, zv, g)
-        self._last_stamp = stamp_ns
-        self._zv_prev = zv
-        self._g_prev = g
-        self._pw_prev = (power_valid, pc, pr)
-        x = self._h.x
-        if self._trace is not None and self._split:
+            self._coast_confirmation(t, m.v, m.v, m.track_force)
+        self._remember(m)
+        if self._trace is not None and self._lookahead:
             rf = self._rf
-            self._trace.append((self.counters["updates"], tuple(rf.x), rf.P, 0.0, 0.0, g, False, False, health))
-        vf = x[1]
-        resistance = x[2] + (x[3] + x[4] * vf) * vf
-        return (x[0], vf, x[2], x[3], x[4], 0.0, 0.0, resistance, g, 0.0, False, health, 0.0, 0.0, False)
+            self._trace.append(TraceStep(self.counters["updates"], tuple(rf.x), rf.P, 0.0, 0.0, m.track_force, False,
+                                         False, health))  # fmt: skip
+        h = self._h
+        x = h.x
+        return StepResult(x[0], x[1], x[2], x[3], x[4], 0.0, 0.0, running_resistance(x[2], x[3], x[4], x[1]),
+                          m.track_force, 0.0, EFFORT_COMPUTED, health, 0.0, 0.0, False, h.P)  # fmt: skip
 
-    def _rejected(self, stamp_ns: int) -> tuple:
+    def _rejected(self, stamp_ns: int) -> StepResult:
         """A sample that cannot be used (NaN or negative speed, NaN track force, stamp older than the last):
         counted, the filter is left as it is, and the current estimate is returned."""
         self.counters["invalid_input"] += 1
@@ -772,25 +934,9 @@ class ResistanceEstimator:
         x = h.x if h.x is not None else [0.0, 0.0, *self._prior_r]
         if h.x is None:
             self._set_cov(h, tuple(self._initial_cov(self._prior_r)))
-        vf = x[1]
-        resistance = x[2] + (x[3] + x[4] * vf) * vf
-        return (
-            x[0],
-            vf,
-            x[2],
-            x[3],
-            x[4],
-            self._last_effort,
-            self._last_accel,
-            resistance,
-            self._g_prev,
-            0.0,
-            False,
-            HEALTH_OK,
-            0.0,
-            self._last_input,
-            False,
-        )
+        return StepResult(x[0], x[1], x[2], x[3], x[4], self._last_effort, self._last_accel,
+                          running_resistance(x[2], x[3], x[4], x[1]), self._g_prev, 0.0, EFFORT_COMPUTED, HEALTH_OK,
+                          0.0, self._last_input, False, h.P)  # fmt: skip
 
     def _gate_position(self, stamp_ns: int, zs: float, rs: float, dt: float, health: int) -> tuple[bool, int, float]:
         """Position gate: (use the position, health, NIS of a gated position). An innovation beyond the
