@@ -96,3 +96,25 @@ def test_demo_with_a_missing_bag_names_it_and_lists_the_bundled_bags(capsys):
     line = _one_line(capsys, ["demo", "--bag", "intercity_99"], 2)
     assert line.startswith("train-calib demo: error: --bag intercity_99: no such bag")
     assert "bundled: intercity_32km_10s_00, intercity_32km_10s_01" in line and "tunnel_line_37km_1s_00" in line
+
+
+def _replay_stderr(tmp_path, *extra: str) -> str:
+    import subprocess
+    import sys
+
+    argv = ["replay", str(BAG), "--track", "intercity_32km", "--train", "virm6", "--out", str(tmp_path), "--no-report"]
+    proc = subprocess.run(
+        [sys.executable, "-m", "train_calib", *argv, "--overwrite", *extra], capture_output=True, text=True, timeout=180
+    )
+    assert proc.returncode == 0, proc.stderr
+    return proc.stderr
+
+
+def test_every_node_logs_one_line_at_start_and_quiet_silences_them(tmp_path):
+    info = [ln for ln in _replay_stderr(tmp_path).splitlines() if "[INFO]" in ln]
+    nodes = ("gnss_speed_node", "ukf_node", "regime_node", "feature_node")
+    assert sorted(ln.split("] [", 2)[2].split("]")[0] for ln in info) == sorted(nodes), info
+    assert "]: method " in next(ln for ln in info if "[regime_node]" in ln)
+    assert "brake steps 0, 40, 60, 80, 130 km/h" in next(ln for ln in info if "[feature_node]" in ln)
+    quiet = _replay_stderr(tmp_path, "--quiet")
+    assert "[INFO]" not in quiet and quiet.strip() == "", quiet

@@ -215,23 +215,52 @@ class Recorder:
         topics: dict[str, str],
         depth: int = 10000,
         forward: dict[str, Any] | None = None,
+        sim_clock: bool = False,
     ) -> None:
         """`forward`: topic -> publisher (of another context) that gets every message received, as received
-        (``train-calib replay --live``)."""
+        (``train-calib replay --live``). `sim_clock`: log times from /clock, followed here rather than by the node's
+        use_sim_time (whose callback dies on a /clock before 1970, e.g. from a damaged bag): a /clock message that is
+        not a valid time is counted in ``undecodable`` and the recording goes on with the last valid one."""
         from .nodes.common import reliable_qos
 
         self.node = node
         self.writer = writer
         self.received: Counter[str] = Counter()
-        clock = node.get_clock()
+        self.undecodable: Counter[str] = Counter()
         qos = reliable_qos(depth)
         self.subscriptions = []
+        if sim_clock:
+            from rosgraph_msgs.msg import Clock
+
+            self._sim_ns = 0
+
+            def on_clock(msg: Any) -> None:
+                sec, nanosec = int(msg.clock.sec), int(msg.clock.nanosec)
+                if sec < 0 or not 0 <= nanosec < 1_000_000_000:
+                    self.undecodable["/clock"] += 1
+                    return
+                self._sim_ns = sec * 1_000_000_000 + nanosec
+
+            from rclpy.qos import QoSProfile, ReliabilityPolicy
+
+            clock_qos = QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT)  # as rclpy's TimeSource
+            self.subscriptions.append(node.create_subscription(Clock, "/clock", on_clock, clock_qos))
+
+            def now_ns() -> int:
+                return self._sim_ns
+
+        else:
+            clock = node.get_clock()
+
+            def now_ns() -> int:
+                return clock.now().nanoseconds
+
         forward = forward or {}
         for topic, msgtype in topics.items():
             out = forward.get(topic)
 
             def callback(data: bytes, topic: str = topic, out: Any = out) -> None:
-                writer.write_raw(topic, data, clock.now().nanoseconds)
+                writer.write_raw(topic, data, now_ns())
                 self.received[topic] += 1
                 if out is not None:
                     out.publish(data)

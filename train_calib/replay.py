@@ -62,6 +62,7 @@ from .train import load_train
 from .yamlcheck import load_yaml_mapping
 
 DEFAULT_CLOCK_HZ = 20.0
+MAX_CLOCK_NS = (2**31 - 1) * 1_000_000_000 + 999_999_999  # the latest time /clock carries (int32 seconds, 2038)
 STARTUP_TIMEOUT_S = 60.0
 STALL_TIMEOUT_S = 60.0
 
@@ -102,6 +103,7 @@ class ReplayOptions:
     graph_factory: Callable[..., Any] | None = None  # (context, names, overrides, params_files) -> Graph (benchmarks)
     domain_id: int | None = None  # None: a domain of its own, localhost only (isolated); N: the graph in domain N
     live: bool = False  # also publish the inputs, /clock and the outputs into the caller's environment
+    quiet_nodes: bool = False  # the nodes log warnings and errors only (no [INFO] lines; --quiet)
 
 
 @dataclass
@@ -155,9 +157,14 @@ def load_inputs(bag: str | Path) -> BagInputs:
     store = typestore()
     messages: list[tuple[str, int, bytes]] = []
     undecodable: Counter[str] = Counter()
+    absurd = 0  # messages with a log time /clock cannot carry
     error = None
     try:
         for m in iter_bag(bag, present):
+            if not 0 <= m.log_time_ns <= MAX_CLOCK_NS:  # /clock could not carry it (int32 seconds): a damaged bag
+                undecodable[m.topic] += 1
+                absurd += 1
+                continue
             try:  # a message the nodes could not deserialize is left out and counted (a damaged bag)
                 store.deserialize_cdr(m.data, present[m.topic])
             except Exception:
@@ -169,7 +176,10 @@ def load_inputs(bag: str | Path) -> BagInputs:
     if not messages:
         raise BagError(error or f"{bag}: the input topics hold no messages")
     if undecodable and error is None:
-        error = f"{bag}: {sum(undecodable.values())} input messages are not valid CDR and were left out"
+        invalid = sum(undecodable.values()) - absurd
+        parts = [f"{invalid} input messages are not valid CDR"] if invalid else []
+        parts += [f"{absurd} input messages have a log time /clock cannot carry (after 2038)"] if absurd else []
+        error = f"{bag}: {' and '.join(parts)} and were left out"
     return BagInputs(present, messages, error, dict(undecodable))
 
 
@@ -281,7 +291,7 @@ class Replay:
     ) -> ReplayResult:
         import rclpy
         from builtin_interfaces.msg import Time
-        from rclpy.parameter import Parameter
+        from rclpy.logging import set_logger_level
         from rosgraph_msgs.msg import Clock
 
         from .nodes.common import reliable_qos
@@ -295,9 +305,8 @@ class Replay:
         # regime, more than the on-board max_regime_wait)
         overrides["max_regime_wait"] = REPLAY_MAX_REGIME_WAIT
         self.node = rclpy.create_node("train_calib_replay", context=context)
-        rec_node = rclpy.create_node(
-            "train_calib_recorder", context=context, parameter_overrides=[Parameter("use_sim_time", value=True)]
-        )
+        # the recorder follows /clock itself (sim_clock): a /clock it cannot read is counted, never fatal
+        rec_node = rclpy.create_node("train_calib_recorder", context=context)
         self.executor, executor_name = self._make_executor(context)
         qos = reliable_qos(1000)
         self.pubs = {t: self.node.create_publisher(message_class(ty), t, qos) for t, ty in inputs.topics.items()}
@@ -318,7 +327,7 @@ class Replay:
                 t: self.live_node.create_publisher(message_class(ty), t, reliable_qos(1000))
                 for t, ty in OUTPUT_TOPICS.items()
             }
-        self.recorder = Recorder(rec_node, writer, OUTPUT_TOPICS, forward=self.live_outputs or None)
+        self.recorder = Recorder(rec_node, writer, OUTPUT_TOPICS, forward=self.live_outputs or None, sim_clock=True)
         graph = None
         extra: list[Any] = []
         wall0 = time.monotonic()
@@ -326,6 +335,7 @@ class Replay:
         max_behind = 0.0
         stream_s = stream_cpu_s = 0.0
         sent: Counter[str] = Counter()
+        restore_levels = self._quiet_nodes() if o.quiet_nodes and not o.processes else {}
         try:
             if o.graph_factory is not None:
                 graph = o.graph_factory(context, self.node_names, overrides, o.params_files)
@@ -336,6 +346,7 @@ class Replay:
                     overrides | {"report_progress": True},
                     o.params_files,
                     env_changes=self.graph_env,
+                    log_level="warn" if o.quiet_nodes else None,
                 )
             else:
                 graph = InProcessGraph(context, self.node_names, overrides, o.params_files)
@@ -396,6 +407,8 @@ class Replay:
             self.node.destroy_node()
             if self.live_node is not None:
                 self.live_node.destroy_node()
+            for name, level in restore_levels.items():
+                set_logger_level(name, level)
         wall = time.monotonic() - wall0
         return ReplayResult(
             out=o.out,
@@ -418,6 +431,16 @@ class Replay:
             isolated=o.domain_id is None,
             live=o.live,
         )
+
+    def _quiet_nodes(self) -> dict[str, Any]:
+        """The in-process nodes' loggers at WARN; returns their levels before, to restore."""
+        import rclpy.logging
+
+        before = {}
+        for name in self.node_names:
+            before[name] = rclpy.logging.get_logger_level(name)
+            rclpy.logging.set_logger_level(name, rclpy.logging.LoggingSeverity.WARN)
+        return before
 
     def _where(self) -> str:
         """Where the graph runs, for the log."""

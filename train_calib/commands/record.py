@@ -33,7 +33,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     import rclpy
     from rclpy.context import Context
-    from rclpy.parameter import Parameter
     from rclpy.signals import SignalHandlerOptions
 
     from ..nodes.common import make_executor
@@ -51,12 +50,9 @@ def run(args: argparse.Namespace) -> int:
     context = Context()
     rclpy.init(args=[], context=context, signal_handler_options=SignalHandlerOptions.NO)
     try:
-        node = rclpy.create_node(
-            "train_calib_recorder",
-            context=context,
-            parameter_overrides=[Parameter("use_sim_time", value=bool(args.use_sim_time))],
-        )
-        recorder = Recorder(node, writer, topics)
+        node = rclpy.create_node("train_calib_recorder", context=context)
+        # --use-sim-time: the recorder follows /clock itself (a /clock that is not a valid time is counted, not fatal)
+        recorder = Recorder(node, writer, topics, sim_clock=bool(args.use_sim_time))
         executor = make_executor(context)
         executor.add_node(node)
         print(f"recording {', '.join(topics)} to {args.out}/output.mcap (Ctrl-C to stop)", file=sys.stderr, flush=True)

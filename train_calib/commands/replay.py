@@ -129,7 +129,9 @@ def add_common_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--overwrite", action="store_true", help="replace the outputs of a previous replay in DIR")
     parser.add_argument("--no-report", action="store_true", help="do not draw report.png")
-    parser.add_argument("--quiet", action="store_true", help="print only errors and the output location")
+    parser.add_argument(
+        "--quiet", action="store_true", help="print only errors and the output location (the nodes log warnings only)"
+    )
 
 
 SIM_TRUTH_FORMAT = "train_calib.sim/"  # the "format" of the simulator's <bag>.truth.json ("train_calib.sim/1")
@@ -211,6 +213,7 @@ def execute(args: argparse.Namespace, out: Path, track: str, train: str) -> dict
                 log=log,
                 domain_id=args.domain_id,
                 live=args.live,
+                quiet_nodes=args.quiet,
             )
         )
     train_spec = load_train(paths.train_file(train))

@@ -18,7 +18,7 @@ from ..params import ParamSet
 from ..pipeline import FeatureStream
 from .common import TrainCalibNode, run_node
 from .config import FEATURES_TOPIC, REGIME_TOPIC
-from .convert import features_to_msg, regime_input_from_msg
+from .convert import features_to_msg, phase_from_msg, regime_input_from_msg
 
 
 class FeatureNode(TrainCalibNode):
@@ -30,10 +30,15 @@ class FeatureNode(TrainCalibNode):
         self._frame_id = ""
         self.output(DrivingFeatures, FEATURES_TOPIC)
         self.chain_input(DrivingRegime, REGIME_TOPIC, self._on_regime)
+        cfg = self.config(FeatureConfig)
+        self.get_logger().info(
+            f"brake steps {', '.join(f'{e * 3.6:g}' for e in cfg.brake_step_edges)} km/h: {REGIME_TOPIC} -> publishing "
+            f"{FEATURES_TOPIC} on each regime change and once per run"
+        )
 
     def _on_regime(self, msg: DrivingRegime) -> None:
         self._frame_id = msg.header.frame_id
-        self._publish(self.stream.update(regime_input_from_msg(msg), int(msg.regime)))
+        self._publish(self.stream.update(regime_input_from_msg(msg), phase_from_msg(msg)))  # the paper's phase
 
     def _publish(self, features: list[Features]) -> None:
         for f in features:

@@ -205,9 +205,11 @@ class ProcessGraph(Graph):
         params_files: Sequence[Path] = (),
         log_dir: Path | None = None,
         env_changes: Mapping[str, str | None] | None = None,
+        log_level: str | None = None,
     ) -> None:
         """`env_changes`: the node processes' environment against os.environ (None values removed), e.g. the
-        replay's own ROS domain (:func:`train_calib.isolation.isolated_environment`)."""
+        replay's own ROS domain (:func:`train_calib.isolation.isolated_environment`); `log_level`: the nodes'
+        ``--log-level`` (e.g. ``warn``)."""
         from ..isolation import applied
 
         self.names = tuple(names)
@@ -227,6 +229,8 @@ class ProcessGraph(Graph):
         try:
             for name in self.names:
                 cmd = [sys.executable, "-m", NODE_MODULES[name][0], "--ros-args"]
+                if log_level:
+                    cmd += ["--log-level", log_level]
                 for f in (*params_files, replay_params):
                     cmd += ["--params-file", str(f)]
                 log = log_dir / f"{name}.log"
