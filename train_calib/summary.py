@@ -166,9 +166,9 @@ def window_pooled_from_msg(fit: WindowFit, msg: Any) -> None:
     """The window's resistance at its mean speed and the pooled r(v) of a WindowResistance message into its WindowFit
     (NaN / 0 windows from bags recorded before the fields)."""
     nan = math.nan
-    fit.resistance_speed = float(getattr(msg, "mean_speed", nan))
-    fit.resistance_at_speed = float(getattr(msg, "resistance_at_mean_speed", nan))
-    fit.resistance_at_speed_std = float(getattr(msg, "resistance_at_mean_speed_std", nan))
+    fit.resistance_speed = float(getattr(msg, "resistance_speed", nan))
+    fit.resistance_at_speed = float(getattr(msg, "resistance_at_speed", nan))
+    fit.resistance_at_speed_std = float(getattr(msg, "resistance_at_speed_std", nan))
     fit.pooled = tuple(float(getattr(msg, f"pooled_{c}", nan)) for c in COEFFS)  # type: ignore[assignment]
     fit.pooled_covariance = tuple(float(x) for x in getattr(msg, "pooled_covariance", ()))
     fit.pooled_windows = int(getattr(msg, "pooled_windows", 0))

@@ -212,8 +212,8 @@ def test_window_to_cdr_is_the_message(frame):
     reference = WindowResistance(
         header=_header(fit.stamp_ns, frame), run_id=2, window_length=30.0, sample_count=29, gof_kind=1,
         gof_value=812.5, a=math.nan, b=1.5e3, c=4.2, r0=0.018, r1=2.9e-4, r2=3.1e-5, regime=3, ill_posed=True,
-        speed_span=4.25, mean_speed=math.nan, resistance_at_mean_speed=math.nan,
-        resistance_at_mean_speed_std=math.nan, pooled_r0=math.nan, pooled_r1=math.nan, pooled_r2=math.nan,
+        speed_span=4.25, resistance_speed=math.nan, resistance_at_speed=math.nan,
+        resistance_at_speed_std=math.nan, pooled_r0=math.nan, pooled_r1=math.nan, pooled_r2=math.nan,
         pooled_covariance=np.full(9, math.nan), pooled_windows=0,
     )  # fmt: skip
     assert _fields(window_to_msg(fit, frame)) == _fields(reference)

@@ -100,7 +100,7 @@ def _assert_same(messages, fits):
             a, b = getattr(msg, name), getattr(fit, name)
             assert (math.isnan(a) and math.isnan(b)) or a == pytest.approx(b, rel=1e-12, abs=1e-15), name
         # the window's resistance at its mean speed and the pooled r(v), as the core computes them
-        published = (msg.mean_speed, msg.resistance_at_mean_speed, msg.resistance_at_mean_speed_std, msg.pooled_r0,
+        published = (msg.resistance_speed, msg.resistance_at_speed, msg.resistance_at_speed_std, msg.pooled_r0,
                      msg.pooled_r1, msg.pooled_r2, *msg.pooled_covariance)  # fmt: skip
         core = (fit.resistance_speed, fit.resistance_at_speed, fit.resistance_at_speed_std, *fit.pooled,
                 *fit.pooled_covariance)  # fmt: skip
@@ -129,7 +129,7 @@ def test_node_publishes_the_core_numbers_with_regimes_joined_by_stamp(rclpy_cont
         well = [m for m in h.received if not m.ill_posed]
         assert len(well) > 40
         assert well[-1].r0 == pytest.approx(run.truth.r0, rel=1e-7)
-        assert h.received[-1].pooled_windows >= 3 and math.isfinite(h.received[-1].resistance_at_mean_speed)
+        assert h.received[-1].pooled_windows >= 3 and math.isfinite(h.received[-1].resistance_at_speed)
         assert h.node.calibrator.counts["well_posed"] == len(well)
         status = h.node.diagnostic_status()
         values = {kv.key: kv.value for kv in status.values}

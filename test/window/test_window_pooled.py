@@ -138,17 +138,16 @@ def test_pooled_covariance_covers_the_truth(simulated):
 
 
 def test_each_window_resistance_at_its_mean_speed_covers_the_truth(simulated):
-    """The per-window values are well posed where the windows are not (every window of these runs is ill posed
-    with 1 km/h speeds) and their sigma is about honest: at least 80 % of the windows within 2 sigma of the truth
+    """The per-window values are well posed where the windows are not (every window of these runs is ill posed,
+    with 0.1 km/h speeds too) and their sigma is about honest: at least 80 % of the windows within 2 sigma of the truth
     (measured 82-99 %; tests of the pooled value above hold it to 90 % of runs)."""
     for quantum, run, _, fits in simulated:
         values = [f for f in fits if math.isfinite(f.resistance_at_speed)]
-        assert len(values) > 0.6 * len(fits)
+        assert len(values) > 0.9 * len(fits)  # measured 95-97 %
         z = np.array([(f.resistance_at_speed - run.truth(f.resistance_speed)) / f.resistance_at_speed_std
                       for f in values])  # fmt: skip
         assert np.mean(np.abs(z) < 2.0) >= 0.80, (run.train.name, quantum, np.mean(np.abs(z) < 2.0))
-        if quantum == 1.0:
-            assert all(f.ill_posed for f in fits)
+        assert all(f.ill_posed for f in fits)
 
 
 def test_python_path_and_copies_give_the_same_pooled_estimate(simulated):

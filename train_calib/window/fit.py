@@ -68,6 +68,21 @@ class WindowFit:
         return self.why[0].format(*self.why[1:]) if self.why else ""
 
     @property
+    def pooled_r0(self) -> float:
+        """The pooled r0 (WindowResistance.pooled_r0), N/kg."""
+        return self.pooled[0]
+
+    @property
+    def pooled_r1(self) -> float:
+        """The pooled r1, N/(kg m/s)."""
+        return self.pooled[1]
+
+    @property
+    def pooled_r2(self) -> float:
+        """The pooled r2, N/(kg (m/s)^2)."""
+        return self.pooled[2]
+
+    @property
     def constraints_relaxed(self) -> bool:
         return self.dropped_constraints > 0
 
