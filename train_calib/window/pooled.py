@@ -176,6 +176,7 @@ class PooledResistance:
         self.estimate = self.prior.copy()
         self.covariance = self.prior_cov.copy()
         self.scale = 1.0  # reduced chi-square applied to the data (>= 1)
+        self._ratio = np.ones(0)  # Huber factor of each pooled window (weight / its own 1 / variance)
         self._last_ns: int | None = None
         self._publish()
 
@@ -185,6 +186,7 @@ class PooledResistance:
         self.estimate = self.prior.copy()
         self.covariance = self.prior_cov.copy()
         self.scale = 1.0
+        self._ratio = np.ones(0)
         self._last_ns = None
         self._publish()
 
@@ -205,25 +207,30 @@ class PooledResistance:
         return True
 
     def _solve(self, iterations: int = 10) -> None:
+        """Iteratively reweighted least squares from the last solution's weights and scale (warm start: one or two
+        iterations per new window)."""
         x = np.array([e.mean_x for e in self.equations])
         y = np.array([e.mean_y for e in self.equations])
         w0 = 1.0 / np.array([e.variance for e in self.equations])
-        w = w0.copy()
-        scale = 1.0
-        info = self._prior_info
+        ratio = np.ones(len(y))
+        ratio[: len(self._ratio)] = self._ratio  # Huber factors of the windows pooled before
+        w = w0 * ratio
+        scale = self.scale
         for _ in range(iterations):
             data = (x.T * w) @ x
             info = self._prior_info + data / scale
             theta = np.linalg.solve(info, self._prior_b + (x.T * w) @ y / scale)
-            z = (y - x @ theta) * np.sqrt(w0)  # normalised residuals (prior variances)
+            z = (y - x @ theta) * np.sqrt(w0)  # normalised residuals (their own variances)
             effective = float(np.trace(np.linalg.solve(info, data / scale)))  # parameters the data determine
-            chi2 = float(np.sum(z * z * w / w0))
+            chi2 = float(z * z @ ratio)
             new_scale = max(1.0, chi2 / max(len(y) - effective, 1.0))
-            w_new = w0 * np.minimum(1.0, HUBER / np.maximum(np.abs(z) / math.sqrt(new_scale), 1e-12))
-            done = abs(new_scale - scale) <= 1e-6 * scale and np.allclose(w_new, w, rtol=1e-6, atol=0.0)
-            scale, w = new_scale, w_new
+            new_ratio = np.minimum(1.0, HUBER / np.maximum(np.abs(z) / math.sqrt(new_scale), 1e-12))
+            done = abs(new_scale - scale) <= 1e-6 * scale and float(np.max(np.abs(new_ratio - ratio))) <= 1e-6
+            scale, ratio = new_scale, new_ratio
+            w = w0 * ratio
             if done:
                 break
+        self._ratio = ratio
         data = (x.T * w) @ x
         info = self._prior_info + data / scale
         self.covariance = np.linalg.inv(info)
