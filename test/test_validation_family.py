@@ -178,3 +178,24 @@ def test_oracle_on_a_family_run(tmp_path: Path) -> None:
     assert abs(s.prior_err) > 5.0
     assert s.oracle_err is not None and abs(s.oracle_err) < 3.0  # % at v_ref; measured 1.8 (white), 0.4
     assert s.oracle_two_sigma_pct is not None and abs(s.oracle_err) < s.oracle_two_sigma_pct
+
+
+def test_best_estimate_is_scored_when_present() -> None:
+    """``output.best`` with r0, r1, r2 (or an array r) and a 3x3 covariance is read; absent: None."""
+
+    @dataclass
+    class _Best:
+        r: np.ndarray
+        covariance: np.ndarray
+
+    @dataclass
+    class _Out:
+        best: object = None
+        final: object = None
+
+    assert score.best_of(_Out()) is None
+    best = score.best_of(_Out(best=_Best(np.array([0.01, 1e-4, 5e-5]), np.eye(3) * 1e-8)))
+    assert [score._field(best, k) for k in ("r0", "r1", "r2")] == [0.01, 1e-4, 5e-5]
+    assert score._field({"r0": 0.02}, "r0") == 0.02
+    s = score.score_estimate([0.01, 1e-4, 5e-5], np.eye(3) * 1e-8, [0.011, 1e-4, 5e-5], 20.0)
+    assert s["err"] == pytest.approx(100.0 * -0.001 / (0.011 + 2e-3 + 0.02))

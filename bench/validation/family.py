@@ -28,6 +28,7 @@ import time
 import zlib
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from functools import lru_cache
 from multiprocessing import Pool
 from pathlib import Path
 from typing import Any
@@ -94,7 +95,7 @@ class Family:
     sensors: str  # a key of SENSORS
     power: bool = False  # traction power at 1 Hz
     stops: bool = False  # stop-to-stop over every station of the track (several run_ids in one bag)
-    runs: int = 6
+    runs: int = 8
     note: str = ""
 
 
@@ -174,7 +175,7 @@ FAMILIES: tuple[Family, ...] = (
         "1hz_gnss2s",
         power=True,
         stops=True,
-        runs=4,
+        runs=6,
         note="real metro profile, 13 interstations with dwell in one bag, power 1 Hz",
     ),
 )
@@ -211,6 +212,18 @@ def all_specs(families: Sequence[Family] = FAMILIES) -> list[RunSpec]:
 
 
 # -- files ---------------------------------------------------------------------------------------------------
+@lru_cache(maxsize=32)
+def cached_track(path: Path) -> Track:
+    """load_track, once per process and file."""
+    return load_track(path)
+
+
+@lru_cache(maxsize=32)
+def cached_train(path: Path) -> TrainSpec:
+    """load_train, once per process and file."""
+    return load_train(path)
+
+
 def resolve_track(name: str) -> Path:
     """A bundled track name or a file of bench/validation/ttobench (or any path)."""
     local = TTOBENCH / name
@@ -322,8 +335,8 @@ def grid_ns(sset: SensorSet, power: bool) -> int:
 def simulate_spec(spec: RunSpec, start_ns: int = 1_700_000_000_000_000_000) -> tuple[Streams, Davis, Track, TrainSpec]:
     """Simulate every interstation of the run with one true resistance and one sensor phase."""
     fam = spec.family
-    track = load_track(resolve_track(fam.track))
-    train = load_train(resolve_train(fam.train))
+    track = cached_track(resolve_track(fam.track))
+    train = cached_train(resolve_train(fam.train))
     rng = np.random.default_rng(spec.seed)
     truth = true_resistance(train, rng)
     sset = SENSORS[fam.sensors]
@@ -522,7 +535,7 @@ def csv_row(spec: RunSpec) -> dict[str, Any]:
         "family": fam.name,
         "split": spec.split,
         "power_period_s": 1.0 if fam.power else 0.0,
-        "legs": len(station_pairs(load_track(resolve_track(fam.track)), fam.stops)),
+        "legs": len(station_pairs(cached_track(resolve_track(fam.track)), fam.stops)),
     }
 
 

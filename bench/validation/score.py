@@ -309,7 +309,12 @@ def best_of(output: Any) -> Any:
 
 
 def _field(obj: Any, name: str) -> Any:
-    return obj[name] if isinstance(obj, dict) else getattr(obj, name)
+    """obj[name] or obj.name; r0, r1, r2 also from an array ``r`` (N/kg units as published)."""
+    if isinstance(obj, dict):
+        return obj[name] if name in obj else obj["r"][("r0", "r1", "r2").index(name)]
+    if hasattr(obj, name):
+        return getattr(obj, name)
+    return obj.r[("r0", "r1", "r2").index(name)]
 
 
 def score_estimate(c: Sequence[float], cov: Any, truth: Sequence[float], v: float) -> dict[str, float | bool]:
