@@ -72,6 +72,21 @@ def test_overlapping_windows_are_pooled_once():
     assert pooled.windows == 2
 
 
+def test_a_new_run_whose_clock_restarts_is_pooled_too():
+    """A recording of several runs (run_id) whose stamps restart: the second run's windows are pooled as well."""
+    train = train_spec()
+    run = euler_run(train)
+    cal = WindowCalibrator(train)
+    for i in range(len(run.series)):
+        cal.update(run.series[i])
+    first = cal.pooled.windows
+    for i in range(len(run.series)):  # the same run again, same stamps, next run_id
+        m = run.series[i]
+        m.run_id = 1
+        cal.update(m)
+    assert first >= 3 and cal.pooled.windows == 2 * first
+
+
 def test_noise_free_discrete_model_gives_the_resistance_at_the_mean_speed():
     """Euler-integrated run (the forward difference is exact, no noise): every window with enough steps gives
     r(mean v) within 2 sigma of the truth (the sigma bounds the train file's r2 taken for the spread of v^2, here

@@ -296,6 +296,7 @@ class WindowCalibrator:
     def _clear(self) -> None:
         self._window.clear()
         self._equations.clear()
+        self.pooled.new_run()
         self._pool_last = None
         self._last = None
 

@@ -190,6 +190,11 @@ class PooledResistance:
         self._last_ns = None
         self._publish()
 
+    def new_run(self) -> None:
+        """The streaming window restarted (a new run, whose clock may restart): its windows share no step with
+        the ones pooled, whatever their stamps."""
+        self._last_ns = None
+
     @property
     def windows(self) -> int:
         """Windows pooled so far."""
