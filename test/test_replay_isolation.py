@@ -90,3 +90,22 @@ def test_waiting_for_subscribers_in_an_isolated_replay_is_refused_in_one_line(tm
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "wait_for_subscribers" in err[0] and "--live" in err[0], err
     assert not (tmp_path / "o" / "output.mcap").exists()
+
+
+def test_beside_a_live_graph_the_default_and_the_live_replay_give_their_outputs_alone(tmp_path):
+    """A replay with --domain-id of this environment is the live graph (the inputs and outputs of the bag published
+    in the caller's domain, as before isolation); --live publishes into it too, and takes nothing in."""
+    alone = _outputs(_start(tmp_path / "alone", "--rate", RATE), tmp_path / "alone")
+    live_graph = _start(tmp_path / "graph", "--rate", "100", "--domain-id", os.environ["ROS_DOMAIN_ID"])
+    procs = {
+        "default": _start(tmp_path / "default", "--rate", RATE),
+        "live": _start(tmp_path / "live", "--rate", RATE, "--live"),
+    }
+    try:
+        for name, proc in procs.items():
+            assert _outputs(proc, tmp_path / name) == alone, name
+    finally:
+        live_graph.kill()
+        live_graph.communicate()
+    summary = json.loads((tmp_path / "live" / "summary.json").read_text())
+    assert summary["isolated"] is True and summary["live"] is True
