@@ -13,6 +13,7 @@ Beyond the paper, as in the estimator: the midpoint process (``midpoint``), proc
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import NamedTuple
 
 import numpy as np
@@ -85,17 +86,19 @@ def update(x_bar, P_bar, Y, wm, wc, z, R, s_measured: bool) -> tuple[np.ndarray,
 
 def resistance_step(
     cfg: UKFConfig, x: np.ndarray, P: np.ndarray, dt: float, u: float, g: float, z: np.ndarray, s_measured: bool,
-    consider: bool,
+    consider: bool, g_of_s: Callable[[float], float] | None = None,
 ) -> ReferenceStep:  # fmt: skip
     """One step of the filter that learns r (the paper's filter): predict over dt with effort u and track force g,
     update with z = (s, v). ``consider``: the process takes r at its mean and r, P_rr keep their predicted values
-    (Schmidt update). v, r clipped at 0 (``nonnegative: clip``). dt = 0: update only."""
+    (Schmidt update). v, r clipped at 0 (``nonnegative: clip``). dt = 0: update only. ``g_of_s``: eq. 5 literally,
+    g(s) at each sigma point's own position (the estimator, like g here, takes g at the measurement)."""
     lam, wm, wc = weights(cfg.alpha, cfg.beta, cfg.kappa)
     midpoint = cfg.integration == "midpoint"
     R = np.diag([cfg.meas_std_s**2, cfg.meas_std_v**2])
     if dt > 0.0:
         X = sigma_points(x, P, lam)  # (7)
-        Y = np.array([f(Xi, dt, u, g, midpoint, x[2:] if consider else None) for Xi in X])  # (8) Y_i = f(X_i, u)
+        gs = [g if g_of_s is None else g_of_s(Xi[0]) for Xi in X]  # g(s) at the measurement, or at each X_i
+        Y = np.array([f(Xi, dt, u, gi, midpoint, x[2:] if consider else None) for Xi, gi in zip(X, gs)])  # (8)
         x_bar = wm @ Y  # (10)
         Q = process_noise(cfg, dt)
         P_bar = (Y - x_bar).T @ np.diag(wc) @ (Y - x_bar) + Q  # (11)
