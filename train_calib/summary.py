@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 
 from .bagio import iter_bag, stamp_ns
-from .estimation.coast_regression import CoastSettings, RunArrays, fit_coasts
+from .estimation.coast_regression import CoastSettings, RunArrays, fit_coasts, power_states
 from .estimation.records import EFFORT_COMPUTED, EFFORT_SOURCES
 from .physics import KMH, davis
 from .regime_codes import REGIME_NAMES, regime_name
@@ -86,7 +86,7 @@ def read_outputs(bag: str | Path) -> Outputs:
         if m.topic == MEASUREMENT:
             meas.append(
                 (stamp_ns(msg.header), msg.s, msg.v, msg.run_id, msg.speed_limit, msg.s_measured, msg.track_force,
-                 msg.tunnel_fraction)
+                 msg.tunnel_fraction, msg.power_valid, msg.power_consumed, msg.power_regenerated)
             )  # fmt: skip
         elif m.topic == RESISTANCE:
             cov = np.asarray(msg.covariance, dtype=float).reshape(5, 5)
@@ -134,6 +134,9 @@ def read_outputs(bag: str | Path) -> Outputs:
             "s_measured": np.array(a[5], dtype=bool),
             "track_force": np.array(a[6], dtype=float),
             "tunnel_fraction": np.array(a[7], dtype=float),
+            "power_valid": np.array(a[8], dtype=bool),
+            "power_consumed": np.array(a[9], dtype=float),
+            "power_regenerated": np.array(a[10], dtype=float),
         }
     if est:
         a = list(zip(*est))
@@ -301,10 +304,16 @@ def best_estimate(
     """The whole run's best estimate of r: the coast regression over every coasting stretch of the recorded
     measurements (offline; docs/estimator.md, "Coast regression"), with its covariance and r(v) at the reference
     speeds. Without a coasting stretch it is the train file's values with the prior's covariance, and says so."""
+    settings = coast if coast is not None else CoastSettings()
+    power = None
+    if np.any(meas["power_valid"]):
+        power = power_states(
+            train, meas["power_valid"], meas["power_consumed"], meas["power_regenerated"], settings.power_threshold
+        )
     arrays = RunArrays(
-        t=meas["t"], v=meas["v"], g=meas["track_force"], tunnel=meas["tunnel_fraction"], run=meas["run_id"]
+        t=meas["t"], v=meas["v"], g=meas["track_force"], tunnel=meas["tunnel_fraction"], run=meas["run_id"], power=power
     )
-    fit = fit_coasts(arrays, train, coast)
+    fit = fit_coasts(arrays, train, settings)
     out: dict[str, Any] = {
         "method": "coast regression over the whole run",
         **{c: float(x) for c, x in zip(COEFFS, fit.r)},

@@ -11,8 +11,10 @@ import numpy as np
 import pytest
 from synthetic import Script, make_run
 
-from train_calib.estimation import UKFConfig, estimate_run
+from train_calib.estimation import COASTING, UKFConfig, estimate_run
 from train_calib.estimation.coast_regression import (
+    POWER_DRIVE,
+    POWER_NONE,
     CoastRegression,
     CoastSettings,
     RunArrays,
@@ -181,3 +183,24 @@ def test_settings_follow_the_config():
     s = CoastSettings.from_config(cfg)
     assert (s.coast_stretch_std, s.prior_scale_std) == (0.2, 0.3)
     assert replace(s, coast_chunk=5.0).coast_chunk == 5.0
+
+
+def test_power_marks_the_coast_and_traction_power_vetoes_it(train):
+    """With pantograph power a coast is where the power shows neither traction nor regeneration: its stretch is
+    trimmed by one sample period, not by the slope window (more data: starts within 2 s of the true coast's start),
+    r(80 km/h) within 5 %. Power that shows traction everywhere leaves no stretch (the speeds alone would find one)."""
+    from synthetic import add_power
+
+    truth = scaled(train.davis, (0.8, 0.8, 0.8))
+    _, dense, series = make_run(seed=2, period=1.0, resistance=truth, train=train)
+    add_power(series, dense, train, np.random.default_rng(2))
+    arr = RunArrays.from_series(series, train)
+    assert arr.power is not None and set(np.unique(arr.power)) == {POWER_NONE, POWER_DRIVE}
+    fit = fit_coasts(arr, train)
+    coast_start = dense.t[np.flatnonzero((dense.regime == COASTING) & (dense.v > 5.0))[0]]
+    assert fit.stretches and fit.stretches[0].t_start - coast_start <= 2.0
+    assert abs(rel_error(fit.r, truth)) < 0.05
+    speeds_only = fit_coasts(RunArrays.from_series(series), train)
+    assert speeds_only.stretches[0].t_start > fit.stretches[0].t_start + 5.0
+    arr.power = np.full(arr.t.size, POWER_DRIVE, dtype=np.int8)
+    assert fit_coasts(arr, train).stretches == []

@@ -59,13 +59,24 @@ class CoastSettings:
     coast_chunk: float = 20.0
     coast_stretch_std: float = 0.05
     coast_min_speed: float = 5.0
+    use_power: bool = True
+    power_coasting: bool = True
+    power_threshold: float = 0.005
     max_gap: float = 30.0
 
     @classmethod
     def from_config(cls, config) -> CoastSettings:
         """From a UKFConfig (or anything with the same attribute names)."""
-        names = [f for f in cls.__dataclass_fields__ if f != "max_gap"]
-        return cls(**{n: float(getattr(config, n)) for n in names})
+        flags = ("use_power", "power_coasting")
+        names = [f for f in cls.__dataclass_fields__ if f not in ("max_gap", *flags)]
+        values: dict = {n: float(getattr(config, n)) for n in names}
+        values.update({n: bool(getattr(config, n)) for n in flags})
+        return cls(**values)
+
+    @property
+    def power_decides(self) -> bool:
+        """Measured power marks coasting (no traction, no regeneration) and excludes traction and braking."""
+        return self.use_power and self.power_coasting
 
 
 def prior_covariance(davis: Davis | tuple[float, float, float], scale_std: float, coefficient_std: float) -> np.ndarray:
@@ -129,6 +140,24 @@ def local_slopes(
     return a, se
 
 
+POWER_UNKNOWN, POWER_NONE, POWER_DRIVE = 0, 1, 2
+"""Per sample: no power measurement; neither traction nor regeneration (coasting, or a pneumatic brake); traction or
+electric braking."""
+
+
+def power_states(
+    train: TrainSpec, valid: np.ndarray, consumed_w: np.ndarray, regenerated_w: np.ndarray, threshold: float
+) -> np.ndarray:
+    """POWER_* per sample from the pantograph power: traction where the wheel power eta (P - P_aux) / (gamma m)
+    exceeds ``threshold`` (W/kg), electric braking where anything is regenerated."""
+    eta_per_mass = train.transmission_efficiency / train.effective_mass_kg
+    wheel = eta_per_mass * (np.asarray(consumed_w, dtype=float) - train.auxiliary_power_kw * 1e3)
+    drive = (wheel > threshold) | (np.asarray(regenerated_w, dtype=float) > 0.0)
+    out = np.where(drive, POWER_DRIVE, POWER_NONE).astype(np.int8)
+    out[~np.asarray(valid, dtype=bool)] = POWER_UNKNOWN
+    return out
+
+
 @dataclass
 class RunArrays:
     """The samples a regression looks at (one recording; several run_ids allowed, in time order)."""
@@ -138,16 +167,22 @@ class RunArrays:
     g: np.ndarray  # N/kg, track force at the measured position
     tunnel: np.ndarray  # fraction of the train in a tunnel
     run: np.ndarray  # run id
+    power: np.ndarray | None = None  # POWER_* per sample (None: no power measured)
 
     @classmethod
-    def from_series(cls, series) -> RunArrays:
-        """From a MeasurementSeries."""
+    def from_series(cls, series, train: TrainSpec | None = None, settings: CoastSettings | None = None) -> RunArrays:
+        """From a MeasurementSeries; with the train, the power states of its traction power (if any)."""
+        power = None
+        if train is not None and len(series) and np.any(series.power_valid):
+            threshold = (settings or CoastSettings()).power_threshold
+            power = power_states(train, series.power_valid, series.power_consumed, series.power_regenerated, threshold)
         return cls(
             t=(series.stamp_ns - series.stamp_ns[0]) * 1e-9 if len(series) else np.zeros(0),
             v=np.asarray(series.v, dtype=float),
             g=np.asarray(series.track_force, dtype=float),
             tunnel=np.asarray(series.tunnel_fraction, dtype=float),
             run=np.asarray(series.run_id, dtype=np.int64),
+            power=power,
         )
 
 
@@ -182,6 +217,18 @@ class CoastFit:
         return Davis(*(float(x) for x in self.r))
 
     @property
+    def r0(self) -> float:
+        return float(self.r[0])
+
+    @property
+    def r1(self) -> float:
+        return float(self.r[1])
+
+    @property
+    def r2(self) -> float:
+        return float(self.r[2])
+
+    @property
     def coasting_time(self) -> float:
         """Seconds of coasting used."""
         return float(sum(s.t_end - s.t_start for s in self.stretches))
@@ -202,23 +249,36 @@ def slope_window(settings: CoastSettings, sigma_v: float, period: float, prior: 
 
 def candidate_steps(
     arr: RunArrays, settings: CoastSettings, prior: np.ndarray, sigma_v: float, window: float, period: float
-) -> np.ndarray:
-    """Step i (sample i-1 to i) may be coasting: both ends are candidates, same run, no gap (bool array)."""
+) -> tuple[np.ndarray, np.ndarray]:
+    """(speed steps, power steps): step i (sample i-1 to i) may be coasting, both ends candidates, same run, no gap.
+    Speed steps: samples without a power measurement that pass the speed test (module docstring, step 3). Power
+    steps: samples whose power shows neither traction nor regeneration (``power_decides``), with the apparent
+    resistance not beyond 1.6 coast_ratio_max (a brake without electric braking). Samples whose power shows
+    traction or electric braking are never candidates."""
     a, se = local_slopes(arr.t, arr.v, arr.run, window, period)
     with np.errstate(invalid="ignore", divide="ignore"):
         ratio = -(a + arr.g) / np.maximum(davis_value(prior, arr.v), 1e-6)
-        cand = (
+        moving = arr.v >= settings.coast_min_speed
+        by_speed = (
             (ratio >= settings.coast_ratio_min)
             & (ratio <= settings.coast_ratio_max)
             & (np.abs(a) >= settings.coast_hold_sigmas * se * sigma_v)
-            & (arr.v >= settings.coast_min_speed)
+            & moving
+            & np.isfinite(a)
         )
-    cand &= np.isfinite(a)
-    step = np.zeros(arr.t.size, dtype=bool)
-    if arr.t.size > 1:
-        gap = min(settings.max_gap, 2.5 * period)
-        step[1:] = cand[1:] & cand[:-1] & (arr.run[1:] == arr.run[:-1]) & (np.diff(arr.t) <= gap)
-    return step
+        by_power = np.zeros_like(by_speed)
+        if arr.power is not None and settings.power_decides:
+            known = arr.power != POWER_UNKNOWN
+            by_speed &= ~known
+            by_power = (arr.power == POWER_NONE) & moving & ~(ratio > 1.6 * settings.coast_ratio_max)
+    steps = []
+    for cand in (by_speed, by_power):
+        step = np.zeros(arr.t.size, dtype=bool)
+        if arr.t.size > 1:
+            gap = min(settings.max_gap, 2.5 * period)
+            step[1:] = cand[1:] & cand[:-1] & (arr.run[1:] == arr.run[:-1]) & (np.diff(arr.t) <= gap)
+        steps.append(step)
+    return steps[0], steps[1]
 
 
 def stretch_bounds(
@@ -339,9 +399,19 @@ def detect(
     period = _period(arr.t)
     v_max = float(np.max(arr.v)) if arr.v.size else 0.0
     window = slope_window(settings, sv, period, prior, v_max)
-    step = candidate_steps(arr, settings, prior, sv, window, period)
+    by_speed, by_power = candidate_steps(arr, settings, prior, sv, window, period)
+    return bounds_of(arr, by_speed, by_power, settings, window, period), sv, window
+
+
+def bounds_of(
+    arr: RunArrays, by_speed: np.ndarray, by_power: np.ndarray, settings: CoastSettings, window: float, period: float
+) -> list[tuple[int, int, int, int]]:
+    """The stretches of both kinds in time order: speed-detected ones trimmed by W/2 (the slope window smears a
+    phase change), power-confirmed ones by one sample period (the power's own clock)."""
     min_duration = max(settings.coast_min_duration, 3.0 * period)
-    return stretch_bounds(arr, step, 0.5 * window, min_duration), sv, window
+    bounds = stretch_bounds(arr, by_speed, 0.5 * window, min_duration)
+    bounds += stretch_bounds(arr, by_power, period, min_duration)
+    return sorted(bounds)
 
 
 def fit_coasts(
@@ -391,6 +461,7 @@ class CoastRegression:
         self._g: list[float] = []
         self._tun: list[float] = []
         self._run: list[int] = []
+        self._power: list[int] = []
         self._d2: list[float] = []
         self._quantum = math.inf
         self._v_max = 0.0
@@ -416,8 +487,8 @@ class CoastRegression:
         q = self._quantum if math.isfinite(self._quantum) else 0.0
         return max(robust, q / math.sqrt(12.0), _MIN_SPEED_NOISE) if (self._d2 or q) else 0.08
 
-    def push(self, t: float, v: float, g: float, tunnel: float, run_id: int) -> bool:
-        """One measurement (t in s, v m/s, g N/kg); True when r or its covariance changed."""
+    def push(self, t: float, v: float, g: float, tunnel: float, run_id: int, power: int = POWER_UNKNOWN) -> bool:
+        """One measurement (t in s, v m/s, g N/kg, power a POWER_* state); True when r or its covariance changed."""
         if not (math.isfinite(t) and math.isfinite(v) and math.isfinite(g)):
             return False
         if self._t and t <= self._t[-1]:
@@ -436,6 +507,7 @@ class CoastRegression:
         self._g.append(g)
         self._tun.append(tunnel if math.isfinite(tunnel) else 0.0)
         self._run.append(int(run_id))
+        self._power.append(int(power))
         self._v_max = max(self._v_max, v)
         if len(self._t) >= 2:
             self._period = self._t[-1] - self._t[-2]
@@ -446,21 +518,24 @@ class CoastRegression:
 
     def _detect(self) -> bool:
         cfg = self.settings
+        power = np.asarray(self._power, dtype=np.int8)
         arr = RunArrays(
             np.asarray(self._t),
             np.asarray(self._v),
             np.asarray(self._g),
             np.asarray(self._tun),
             np.asarray(self._run, dtype=np.int64),
+            power if np.any(power != POWER_UNKNOWN) else None,
         )
         if arr.t.size < 3:
             return False
         sv = self.sigma_v()
         period = _period(arr.t)
         self.window = window = slope_window(cfg, sv, period, self.prior, self._v_max)
-        step = candidate_steps(arr, cfg, self.prior, sv, window, period)
+        by_speed, by_power = candidate_steps(arr, cfg, self.prior, sv, window, period)
+        step = by_speed | by_power
         trim = 0.5 * window
-        bounds = stretch_bounds(arr, step, trim, max(cfg.coast_min_duration, 3.0 * period))
+        bounds = bounds_of(arr, by_speed, by_power, cfg, window, period)
         horizon = arr.t[-1] - 0.5 * window - trim  # a stretch whose last candidate step is before this is over
         done = [b for b in bounds if arr.t[b[3]] <= horizon and arr.t[b[2]] > self._consumed]
         changed = False
@@ -489,11 +564,14 @@ class CoastRegression:
     def _keep_from(self, k: int) -> None:
         if k <= 0:
             return
-        for buf in (self._t, self._v, self._g, self._tun, self._run):
+        for buf in (self._t, self._v, self._g, self._tun, self._run, self._power):
             del buf[:k]
 
 
 __all__ = [
+    "POWER_DRIVE",
+    "POWER_NONE",
+    "POWER_UNKNOWN",
     "CoastFit",
     "CoastRegression",
     "CoastSettings",
@@ -501,6 +579,7 @@ __all__ = [
     "Stretch",
     "davis_value",
     "fit_coasts",
+    "power_states",
     "prior_covariance",
     "speed_noise",
 ]
