@@ -10,8 +10,11 @@ from __future__ import annotations
 
 import json
 import os
+import re
+import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -109,3 +112,42 @@ def test_beside_a_live_graph_the_default_and_the_live_replay_give_their_outputs_
         live_graph.communicate()
     summary = json.loads((tmp_path / "live" / "summary.json").read_text())
     assert summary["isolated"] is True and summary["live"] is True
+
+
+def _readme_das() -> str:
+    readme = (REPO / "README.md").read_text()
+    (das,) = [b for b in re.findall(r"```python\n(.*?)```", readme, flags=re.S) if "class Das" in b]
+    return das
+
+
+def test_the_readme_s_das_gets_every_message_of_a_live_replay_from_the_first_and_exits_quietly(tmp_path):
+    """The README's DAS (two topics) and its replay command: --live --wait-for-subscribers 1 starts once it has
+    subscribed, it receives every regime and resistance message, and Ctrl-C ends it without a traceback."""
+    script = tmp_path / "das.py"
+    script.write_text(_readme_das())
+    das = subprocess.Popen(
+        [sys.executable, "-u", str(script)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    )
+    try:
+        readme = (REPO / "README.md").read_text()
+        (command,) = [
+            ln for ln in readme.splitlines() if "--live --wait-for-subscribers 1" in ln and ln.startswith("train")
+        ]
+        argv = command.split()[1:]
+        argv[argv.index("--rate") + 1] = "100"  # the bag in 13 s rather than 65
+        replay = subprocess.run(
+            [sys.executable, "-m", "train_calib", *argv, "--out", str(tmp_path / "o"), "--no-report", "--quiet"],
+            capture_output=True,
+            text=True,
+            timeout=240,
+            cwd=REPO,
+        )
+        assert replay.returncode == 0, replay.stderr
+        time.sleep(1.0)  # the last messages on their way
+    finally:
+        das.send_signal(signal.SIGINT)
+        out, err = das.communicate(timeout=30)
+    assert das.returncode == 0 and "Traceback" not in err, err
+    lines = out.splitlines()
+    assert sum(ln.startswith("regime ") for ln in lines) == 131
+    assert sum(ln.startswith("r(v) = ") for ln in lines) == 131

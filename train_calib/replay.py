@@ -516,27 +516,45 @@ class Replay:
         )
 
     def _wait_connected(self, graph: Any) -> None:
+        """Spin until every node is up and every subscription of the graph and the recorder is matched; with
+        ``wait_for_subscribers`` N, also until N other nodes (a DAS: in the caller's environment with --live, else
+        in the graph's domain) subscribe to output topics and each of their subscriptions is matched."""
         wanted = self.o.wait_for_subscribers
         live = self.live_node is not None
-        extra = 1 + (0 if live else wanted)  # live: the extra subscribers are in the caller's environment
         n_nodes = len(graph.names)
+        own = {*graph.names, "train_calib_recorder", "train_calib_replay", "train_calib_replay_live"}
+        probe = self.live_node if live else self.node
+        where = "in your environment" if live else f"in ROS domain {self.domain_id}"
 
-        def live_lacking() -> list[str]:
-            if not live or not wanted:
+        def outputs() -> list[str]:
+            return sorted({t for p in graph.progress().values() for t in p.published})
+
+        def others(topic: str) -> list[Any]:
+            return [i for i in probe.get_subscriptions_info_by_topic(topic) if i.node_name not in own]
+
+        def matched_by_others(topic: str) -> int:
+            if live:
+                return self.live_outputs[topic].get_subscription_count() if topic in self.live_outputs else 0
+            expected = graph.subscribers_expected(1)[topic]  # the graph's own subscribers and the recorder
+            return min(p.matched.get(topic, 0) for p in graph.progress().values() if topic in p.published) - expected
+
+        def das_lacking() -> list[str]:
+            if not wanted:
                 return []
-            published = {t for p in graph.progress().values() for t in p.published}
-            return [
-                f"{t} ({self.live_outputs[t].get_subscription_count()} of {wanted} subscribers in your environment)"
-                for t in sorted(published)
-                if t in self.live_outputs and self.live_outputs[t].get_subscription_count() < wanted
-            ]
+            subscriptions = {t: others(t) for t in outputs()}
+            nodes = {(i.node_namespace, i.node_name) for infos in subscriptions.values() for i in infos}
+            lacking = [f"{len(nodes)} of {wanted} subscriber nodes {where}"] if len(nodes) < wanted else []
+            for topic, infos in subscriptions.items():
+                if infos and matched_by_others(topic) < len(infos):
+                    lacking.append(f"{topic} ({matched_by_others(topic)} of {len(infos)} subscriptions {where})")
+            return lacking
 
         def ready() -> bool:
             return (
                 len(graph.progress()) == n_nodes
-                and graph.connected(extra)
+                and graph.connected(1)
                 and all(p.get_subscription_count() >= 1 for p in self.pubs.values())
-                and not live_lacking()
+                and not das_lacking()
             )
 
         def what() -> str:
@@ -544,14 +562,14 @@ class Replay:
             missing = [n for n in graph.names if n not in progress]
             if missing:
                 return f"nodes to start: {', '.join(missing)}"
-            expected = graph.subscribers_expected(extra)
+            expected = graph.subscribers_expected(1)
             lacking = [
                 f"{t} ({p.matched.get(t, 0)} of {expected[t]} subscribers)"
                 for p in progress.values()
                 for t in p.published
                 if p.matched.get(t, 0) < expected[t]
             ]
-            return "subscribers to match: " + ", ".join(lacking + live_lacking())
+            return "subscribers to match: " + ", ".join(lacking + das_lacking())
 
         self._spin_until(ready, what, graph, timeout_s=STARTUP_TIMEOUT_S)
 

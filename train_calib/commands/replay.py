@@ -104,8 +104,8 @@ def add_common_arguments(parser: argparse.ArgumentParser) -> None:
         type=int,
         default=0,
         metavar="N",
-        help="start when every output topic has N subscribers besides the recorder (a DAS; needs --live or "
-        "--domain-id)",
+        help="start when N other nodes (a DAS) subscribe to output topics, each subscription matched (needs --live "
+        "or --domain-id)",
     )
     parser.add_argument(
         "--live",
