@@ -456,7 +456,7 @@ def truth_1hz(streams: Streams) -> dict[str, list[float]]:
     first_ns = first_message_ns(streams)
     parts = []
     for leg in streams.legs:
-        d = _before(leg.run, None).dense
+        d = leg.run.dense
         t = (d.t_ns - first_ns) * 1e-9
         on = np.abs(t - np.round(t)) < 1e-6
         parts.append((np.round(t[on]), d.s[on], d.v[on], d.a[on], d.u[on], d.regime[on]))
