@@ -70,6 +70,8 @@ class Harness:
         from train_calib.nodes.convert import time_msg
 
         msg = DrivingRegime(regime=int(regime))
+        if hasattr(msg, "phase"):  # the paper's phase, which the node takes where the message has it
+            msg.phase = int(regime)
         msg.header.stamp = time_msg(int(stamp_ns))
         self.regime_pub.publish(msg)
 
