@@ -444,7 +444,8 @@ class CoastRegression:
     highest speed so far.
     """
 
-    REFRESH = 20.0  # s between detections (at least 3 sample periods)
+    REFRESH = 20.0  # s between detections ...
+    REFRESH_PERIODS = 6  # ... and at least this many sample periods (10 s sampling: every minute)
     NOISE_SAMPLES = 4000  # second differences kept for the speed-noise estimate
 
     def __init__(self, train: TrainSpec, settings: CoastSettings, prior: Davis | None = None) -> None:
@@ -471,6 +472,8 @@ class CoastRegression:
         self._d2_seen = 0
         self._sv, self._sv_at = math.nan, 0
         self._period = math.nan  # s, the latest sample interval
+        self._moved = False  # a moving sample since the last detection
+        self._open = False  # the last detection left a candidate run open
 
     def reset(self) -> None:
         """Back to the prior (forget every stretch)."""
@@ -511,9 +514,13 @@ class CoastRegression:
         self._v_max = max(self._v_max, v)
         if len(self._t) >= 2:
             self._period = self._t[-1] - self._t[-2]
-        if t - self._last_detect < max(self.REFRESH, 3.0 * self._period):
+        self._moved = self._moved or v >= self.settings.coast_min_speed
+        if t - self._last_detect < max(self.REFRESH, self.REFRESH_PERIODS * self._period):
             return False
         self._last_detect = t
+        if not self._moved and not self._open:  # standing since the last detection: nothing can have changed
+            return False
+        self._moved = False
         return self._detect()
 
     def _detect(self) -> bool:
@@ -553,6 +560,7 @@ class CoastRegression:
         keep_t = horizon - window
         idx = np.flatnonzero(step)
         late = idx[arr.t[idx] > horizon] if idx.size else idx
+        self._open = bool(late.size)
         if late.size:
             i = int(late[0])
             while i > 0 and step[i - 1]:
