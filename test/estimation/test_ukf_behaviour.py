@@ -27,6 +27,7 @@ from train_calib.estimation import (
     estimate_run,
 )
 from train_calib.estimation.covariance import pack, project_nonnegative, repair, unpack
+from train_calib.estimation.ukf import Prediction, StepInput, StepResult, TraceStep
 from train_calib.measurement import MeasurementSeries
 from train_calib.train import Davis
 
@@ -70,6 +71,34 @@ def test_estimate_run_equals_per_sample_updates(preset):
         assert np.array_equal(a, b), f.name
     assert np.array_equal(est.state, batch.state[-1])
     assert np.array_equal(est.covariance, batch.covariance[-1])
+
+
+def test_process_and_the_trace_api():
+    """process(StepInput) -> StepResult (named, the packed covariance with it) equals update() field for field; with
+    look-ahead, record_trace() gives one TraceStep per sample the resistance filter used, behind the published r."""
+    train, series = two_runs_with_gaps()
+    cfg = UKFConfig.converging()
+    a, b = ResistanceEstimator(train, cfg), ResistanceEstimator(train, cfg)
+    assert a.has_lookahead and a.trace is None
+    trace = a.record_trace()
+    for m in series:
+        r, sample = a.process(StepInput.from_measurement(m)), b.update(m)
+        assert isinstance(r, StepResult) and r._fields[:3] == ("s", "v", "r0")
+        assert np.array_equal(unpack(r.covariance), sample.covariance)
+        assert (r.s, r.v, r.r0, r.r1, r.r2, r.effort, r.nis, r.health) == (
+            sample.s, sample.v, sample.r0, sample.r1, sample.r2, sample.effort, sample.nis, sample.health)
+        assert (r.effort_source != EFFORT_COMPUTED) == sample.effort_known
+    a.flush()
+    assert a.trace is trace and [t.arrival for t in trace] == list(range(1, len(series) + 1))
+    assert all(isinstance(t, TraceStep) and len(t.x) == 5 and len(t.covariance) == 15 for t in trace)
+    assert sum(t.effort_known for t in trace) > 0
+    assert trace[-1].x[2:] == tuple(a.state[2:])  # the published r is the resistance filter's
+    # predict(): the resistance filter's prediction, the filter itself untouched
+    x, p = trace[10].x, trace[10].covariance
+    pred = a.predict(x, p, 10.0, 0.0, 0.0, False)
+    assert isinstance(pred, Prediction) and pred.x[0] > x[0] and pred.x[1] < x[1]  # coasting on the level: slower
+    assert a.predict(x, tuple([0.0] * 15), 10.0, 0.0, 0.0, False) is None
+    assert trace[-1].x[2:] == tuple(a.state[2:])
 
 
 def test_outputs_finite_nonnegative_symmetric_pd():

@@ -20,8 +20,9 @@ a(x +- c L_j) - a(x):
 
 which is algebraically the weighted sums of eq. 10-11 (van der Merwe weights, eq. 9) without
 forming the 11 sigma points or their huge cancelling weights (w0 = -1.7e6 with Table 1), and the
-update (eq. 13-18) with a linear h reduces to a 2x2 Kalman update. A test checks the result
-against filterpy's UnscentedKalmanFilter + MerweScaledSigmaPoints.
+update (eq. 12-18) with a linear h reduces to a 2x2 Kalman update (derivation: docs/estimator.md, "The filter").
+``ukf_reference.py`` is the same step written as the paper's equations with explicit sigma points; tests check
+the closed form against it step by step and against filterpy's UnscentedKalmanFilter + MerweScaledSigmaPoints.
 
 Known effort with look-ahead (``effort_mode: exploit_known``, ``coast_confirm_ahead`` > 0): whether a step
 was coasting (u = 0 known) is decided only when the speeds up to ``coast_confirm_ahead`` after it are in
@@ -33,6 +34,13 @@ parameter fixed at the resistance filter's latest estimate (its uncertainty ente
 acceleration noise J P_rr J^T, first order: a is linear in r), the effort decided at once from past samples.
 The published estimate is the output filter's s, v and the resistance filter's r (covariance block
 diagonal); both are causal. Without look-ahead the two are one filter.
+
+Reading order: ``ResistanceEstimator.process`` (one measurement: ``_rejection``, ``_repaired``, ``_start_run`` /
+``_restart_after_gap``, ``_step`` = ``_predict_published`` (effort decision ``_known_effort``, prediction),
+``_measure`` (gate, update), ``_safeguard``, ``_look_ahead`` (the resistance filter: ``_advance``,
+``_resistance_step``)), then the closed-form step at the end of the class. Results are named tuples:
+``StepResult`` per measurement, ``PendingStep`` per step waiting for the look-ahead, ``TraceStep`` per step of the
+resistance filter (``record_trace``). Packed covariance indices: ``covariance.py`` and docs/estimator.md.
 """
 
 from __future__ import annotations
@@ -830,7 +838,7 @@ class ResistanceEstimator:
         span = cs.span
         if span >= self._ahead_test_span:
             p0, p1, p2 = self._prior_r if self._coast_prior else self._rf.x[2:5]
-            r_dec = p0 + (p1 + p2 * v) * v
+            r_dec = running_resistance(p0, p1, p2, v)
             hi = cfg.coast_effort_tolerance
             lo = -hi
             if cfg.coast_vs_hold:
