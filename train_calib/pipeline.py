@@ -55,60 +55,72 @@ class RegimeRecord:
     acceleration: float
     v_measured: float = math.nan  # the speed measurement, m/s
     effort_source: int = EFFORT_COMPUTED  # EFFORT_* of the estimate
+    phase: int = 0  # the paper's phase (RegimeClassifier.phase; features and window calibration use it)
 
 
 def classify_estimate(classifier: RegimeClassifier, estimate: Any) -> int:
-    """The driving regime of one estimate, as regime_node and :class:`Pipeline` classify it.
+    """The driving regime of one estimate, as regime_node and :class:`Pipeline` classify it; its phase is
+    ``classifier.phase`` afterwards.
 
-    `estimate` has ``effort`` (N/kg), ``acceleration`` (m/s^2), ``v`` (m/s), ``effort_known`` and ``resistance``
-    + ``track_force`` (N/kg; an EstimateSample or a ResistanceEstimate as a ``RegimeInput``). The classifier
-    gets ``effort_known`` and ``opposing_force`` = resistance + track_force, the force the effort works
-    against: with them the HMM uses the exact r + g on every sample and, where the effort comes from measured
-    traction power, the instantaneous net acceleration effort - (r + g) (docs/estimator.md, Regimes). Fields
-    that are None are not passed.
+    `estimate` has ``stamp_ns``, ``effort`` (N/kg), ``acceleration`` (m/s^2), ``v`` (m/s), ``v_measured`` (m/s),
+    ``effort_known`` and ``resistance`` + ``track_force`` (N/kg; an EstimateSample or a ResistanceEstimate as a
+    ``RegimeInput``). The classifier gets ``effort_known`` and ``opposing_force`` = resistance + track_force, the
+    force the effort works against: with them the HMM uses the exact r + g on every sample and, where the effort
+    comes from measured traction power, the instantaneous net acceleration effort - (r + g); the IMM (the default)
+    the measured speed and the time (docs/estimator.md, Regimes). Fields that are None are not passed.
     """
     resistance, track_force = estimate.resistance, estimate.track_force
     w = None if resistance is None or track_force is None else resistance + track_force
     return classifier.classify(
-        estimate.effort, estimate.acceleration, estimate.v, effort_known=estimate.effort_known, opposing_force=w
+        estimate.effort,
+        estimate.acceleration,
+        estimate.v,
+        effort_known=estimate.effort_known,
+        opposing_force=w,
+        speed_measured=getattr(estimate, "v_measured", None),
+        time=estimate.stamp_ns * 1e-9,
     )
 
 
 class RegimeStream:
     """regime_node's publication rule (shared with :class:`Pipeline`): ``push(sample)`` classifies an estimate and
-    returns the (sample, regime) pairs to publish now, in order. With ``lag_samples`` 0 that is the sample itself;
-    with 1 the previous sample, its regime revised with this one (``RegimeClassifier.revised_previous``; its own
-    causal regime where this sample does not inform it, e.g. a new run), and this one is held until the next or
-    ``flush()`` (end of input). Samples carry ``run_id``; the held one is released with its causal regime when a
-    sample of another run comes."""
+    returns the (sample, regime, phase) triples to publish now, in order. With ``lag_samples`` 0 that is the sample
+    itself; with 1 the previous sample, its phase revised with this one (``RegimeClassifier.revised_previous``; its
+    own causal phase where this sample does not inform it, e.g. a new run; with ``hmm`` the regime is the phase,
+    with ``imm`` the regime stays causal), and this one is held until the next or ``flush()`` (end of input).
+    Samples carry ``run_id``; the held one is released with its causal labels when a sample of another run comes."""
 
     def __init__(self, config: RegimeConfig | None = None) -> None:
         self.config = config if config is not None else RegimeConfig()
         self.classifier = RegimeClassifier(self.config)
         self._lag = self.config.lag_samples > 0
-        self._held: tuple[Any, int] | None = None
+        self._revise_regime = self.config.method == "hmm"  # hmm: the regime is the phase
+        self._held: tuple[Any, int, int] | None = None
 
     @property
     def pending(self) -> int:
         """Samples classified but not yet released."""
         return int(self._held is not None)
 
-    def push(self, sample: Any) -> list[tuple[Any, int]]:
+    def push(self, sample: Any) -> list[tuple[Any, int, int]]:
         regime = classify_estimate(self.classifier, sample)
+        phase = self.classifier.phase
         if not self._lag:
-            return [(sample, regime)]
+            return [(sample, regime, phase)]
         out = []
         if self._held is not None:
-            held, held_regime = self._held
+            held, held_regime, held_phase = self._held
             revised = self.classifier.revised_previous
             if revised is not None and held.run_id == sample.run_id:
-                held_regime = revised
-            out.append((held, held_regime))
-        self._held = (sample, regime)
+                held_phase = revised
+                if self._revise_regime:
+                    held_regime = revised
+            out.append((held, held_regime, held_phase))
+        self._held = (sample, regime, phase)
         return out
 
-    def flush(self) -> list[tuple[Any, int]]:
-        """Release the held sample with its causal regime (end of input)."""
+    def flush(self) -> list[tuple[Any, int, int]]:
+        """Release the held sample with its causal labels (end of input)."""
         held, self._held = self._held, None
         return [held] if held is not None else []
 
@@ -233,18 +245,20 @@ class Pipeline:
         self._measurements_held.append((m, True))
         self._publish_regimes(self.regimes.push(e))
 
-    def _publish_regimes(self, pairs: list[tuple[EstimateSample, int]]) -> None:
-        """What regime_node publishes, then what feature_node and window_calib_node do with each regime."""
+    def _publish_regimes(self, triples: list[tuple[EstimateSample, int, int]]) -> None:
+        """What regime_node publishes, then what feature_node and window_calib_node do with each sample's phase
+        (the paper's regime notion, which the features and the window method are built on)."""
         out = self.out
-        for e, regime in pairs:
+        for e, regime, phase in triples:
             m, _ = self._measurements_held.popleft()  # e's measurement (those without an estimate went before)
             out.regimes.append(
                 RegimeRecord(
-                    e.stamp_ns, e.run_id, regime, e.s, e.v, e.effort, e.acceleration, e.v_measured, e.effort_source
+                    e.stamp_ns, e.run_id, regime, e.s, e.v, e.effort, e.acceleration, e.v_measured, e.effort_source,
+                    phase,
                 )
-            )
-            out.features += self.features.update(e, regime)
-            self._window(m, regime)
+            )  # fmt: skip
+            out.features += self.features.update(e, phase)
+            self._window(m, phase)
             self._release_unregimed()
 
     def _release_unregimed(self) -> None:

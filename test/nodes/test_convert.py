@@ -31,6 +31,7 @@ from train_calib.nodes.convert import (
     measurement_from_msg,
     measurement_to_cdr,
     measurement_to_msg,
+    phase_from_msg,
     regime_input_from_msg,
     regime_to_cdr,
     regime_to_msg,
@@ -152,10 +153,14 @@ def test_estimate_to_msg_is_the_constructed_message():
 def test_regime_to_msg_and_back():
     sample = RegimeInput(3 * NS + 9, 1, 5.0, 6.0, 0.2, -0.1, True, 0.03, 0.0, 6.1, EFFORT_POWER_COASTING)
     reference = DrivingRegime(header=_header(sample.stamp_ns, "x"), run_id=1, regime=2, s=5.0, v=6.0, effort=0.2,
-                              acceleration=-0.1, v_measured=6.1, effort_source=3)  # fmt: skip
-    msg = regime_to_msg(sample, np.int64(2), "x")
+                              acceleration=-0.1, v_measured=6.1, effort_source=3, phase=2)  # fmt: skip
+    msg = regime_to_msg(sample, np.int64(2), "x")  # no phase given: the regime
     _same(msg, reference)
     _same_cdr(regime_to_cdr(sample, np.int64(2), "x"), reference)
+    reference.regime = 3  # a coasting sample of a cycle the paper calls cruising
+    _same(regime_to_msg(sample, 3, "x", phase=np.int64(2)), reference)
+    _same_cdr(regime_to_cdr(sample, 3, "x", phase=2), reference)
+    assert phase_from_msg(reference) == 2
     back = regime_input_from_msg(msg)
     assert back == RegimeInput(
         sample.stamp_ns, 1, 5.0, 6.0, 0.2, -0.1, v_measured=6.1, effort_source=EFFORT_POWER_COASTING, frame_id="x"
@@ -170,6 +175,7 @@ def test_a_message_recorded_without_the_measured_speed_and_effort_source_reads_a
     old = regime_input_from_msg(OldRegime())
     assert math.isnan(old.v_measured)
     assert old.effort_source == EFFORT_COMPUTED
+    assert phase_from_msg(OldRegime()) == 1  # recorded before the phase field: its regime was the phase
 
 
 def test_regime_input_from_an_estimate():

@@ -220,7 +220,7 @@ def test_diagnostics_report_drops_by_reason_rates_and_filter_health_in_sim_time(
     assert int(window_values["windows ill posed"]) == len(reference.windows) - well
     assert int(window_values["/train_calib/window_resistance published"]) == len(reference.windows)
     _, regime = last["regime_node"]
-    assert {kv.key: kv.value for kv in regime.values}["method"] == "hmm"
+    assert {kv.key: kv.value for kv in regime.values}["method"] == "imm"
     # use_sim_time: diagnostics are stamped with the bag's clock, not the wall clock
     first = reference.measurements[0].stamp_ns
     stamps = [bagio.stamp_ns(a.header) for a in diag]

@@ -24,7 +24,7 @@ NONNEGATIVE_RULES = ("project", "clip")
 CARRY_OVER = ("reset", "keep")
 PRESETS = ("learning", "paper", "converging")
 RESISTANCE_LEARNING = ("coast_regression", "ukf")
-REGIME_METHODS = ("hmm", "rule")
+REGIME_METHODS = ("imm", "hmm", "rule")
 
 
 @dataclass(frozen=True)
@@ -303,10 +303,53 @@ class RegimeConfig(ParamSet):
     """Driving regime recognition (Cunillera et al. 2022, Section 3.2; docs/estimator.md, "Regimes")."""
 
     method: str = param(
-        "hmm",
-        "hmm: forward filter of a hidden Markov model over the four regimes on the acceleration each predicts "
-        "(causal, per sample); rule: the paper's per-sample thresholds (effort_tolerance, cruise_tolerance)",
+        "imm",
+        "imm: the regime of each sample, physical (traction u > 0 beyond holding, coasting u = 0, braking, cruising = "
+        "holding the speed), from an interacting multiple-model filter on the measured speeds, with the paper's phase "
+        "(hmm) beside it; hmm: forward filter of a hidden Markov model over the four regimes on the acceleration each "
+        "predicts, the paper's phases (traction/coast cycles around a target are cruising); rule: the paper's "
+        "per-sample thresholds (effort_tolerance, cruise_tolerance)",
         choices=REGIME_METHODS,
+    )
+    imm_speed_noise_std: float = param(
+        0.15,
+        "imm: standard deviation of a measured speed about the true one (0.5 km/h noise, 1 km/h rounding: 0.16)",
+        unit="m/s",
+        low=0.001,
+        high=10.0,
+    )
+    imm_adapt_noise: bool = param(
+        True,
+        "imm: learn the speed noise over the run from the second differences of the measured speeds, starting from "
+        "imm_speed_noise_std (never below a fifth of it)",
+    )
+    imm_hold_accel_std: float = param(
+        0.005, "imm: standard deviation of the acceleration while the speed is held", unit="m/s^2", low=1e-4, high=1.0
+    )
+    imm_coast_accel_std: float = param(
+        0.02,
+        "imm: standard deviation of the coasting deceleration about -(r + g), added to resistance_rel_std x (r + g)",
+        unit="m/s^2",
+        low=1e-4,
+        high=1.0,
+    )
+    imm_accel_walk_std: float = param(
+        0.05,
+        "imm: traction and braking: the acceleration walks randomly by this much in one second",
+        unit="m/s^2",
+        low=1e-4,
+        high=5.0,
+    )
+    imm_mean_dwell: float = param(
+        40.0,
+        "imm: mean duration of a regime: the probability of a change between samples dt apart is 1 - exp(-dt / this)",
+        unit="s",
+        low=0.1,
+        high=1e5,
+    )
+    imm_switch_max: float = param(
+        0.3, "imm: at most this probability of a change between two samples (long sample periods)", low=0.0, high=0.75,
+        low_open=True,
     )
     effort_tolerance: float = param(
         0.025, "rule: |effort| within this is coasting; above traction, below braking", unit="N/kg", low=0.0
@@ -364,8 +407,8 @@ class RegimeConfig(ParamSet):
     )
     resistance_rel_std: float = param(
         0.3,
-        "hmm: relative uncertainty of r + g (the coasting deceleration): adds (this x (r + g))^2 to the variance of "
-        "the COASTING prediction",
+        "hmm and imm: relative uncertainty of r + g (the coasting deceleration): adds (this x (r + g))^2 to the "
+        "variance of the COASTING prediction",
         low=0.0,
         high=2.0,
     )

@@ -1,8 +1,25 @@
 """Driving regime per sample (Cunillera et al. 2022, Section 3.2); constants as DrivingRegime.msg.
 
-Two methods (``RegimeConfig.method``). Both are causal -- a sample's regime depends on that sample and
+Three methods (``RegimeConfig.method``). All are causal -- a sample's regime depends on that sample and
 earlier ones only, is returned at once and is never revised -- and total: any input, NaN included, gives a
 regime.
+
+``imm`` (default) -- the regime of each sample in the physical sense (issue 19 item 5): TRACTION where the
+effort exceeds what holds the speed, COASTING where it is zero, BRAKING, and CRUISING where the speed is held.
+An interacting multiple-model filter (IMM: Blom & Bar-Shalom) on the measured speeds, one Kalman filter of
+(speed, acceleration) per regime:
+
+    CRUISING   a = 0                   (std ``imm_hold_accel_std``)
+    COASTING   a = -(r + g)            (std ``imm_coast_accel_std`` (+) ``resistance_rel_std`` x (r + g))
+    TRACTION   a walks randomly        (``imm_accel_walk_std`` per second), effort a + r + g > 0
+    BRAKING    a walks randomly,       effort a + r + g < 0
+
+observed through the measured speed (std ``imm_speed_noise_std``); a change between samples dt apart has
+probability 1 - exp(-dt / ``imm_mean_dwell``) (at most ``imm_switch_max``). The innovations of each model
+weigh it against the others: the speeds themselves, not a window slope, so a change shows within a few
+samples at 1 Hz and traction/coast cycles around a target speed come out as traction and coasting. Beside it
+the classifier keeps the ``hmm`` below, whose label is the **phase** (:attr:`RegimeClassifier.phase`): the
+paper's notion, where those cycles are cruising. With ``hmm`` or ``rule`` the phase is the regime.
 
 ``rule`` -- the paper's rule, per sample and stateless: |effort| <= effort_tolerance -> COASTING; above
 -> TRACTION, below -> BRAKING; a TRACTION or BRAKING sample with |acceleration| <= cruise_tolerance ->
@@ -108,12 +125,14 @@ class RegimeClassifier:
         "_b_hi",
         "_b_lo",
         "_hmm",
+        "_imm",
         "_known_log",
         "_lagged",
         "_lam",
         "_log_norm",
         "_log_stay",
         "_log_switch",
+        "_phase",
         "_prob",
         "_revised",
         "_sigma",
@@ -129,7 +148,8 @@ class RegimeClassifier:
 
     def __init__(self, config: RegimeConfig | None = None) -> None:
         self.config = cfg = config if config is not None else RegimeConfig()
-        self._hmm = cfg.method == "hmm"
+        self._hmm = cfg.method in ("hmm", "imm")  # imm: the hmm gives the phase
+        self._imm = _Imm(cfg) if cfg.method == "imm" else None
         self._v = cfg.standstill_speed
         s = self._sigma = cfg.accel_noise_std
         self._log_norm = -_LOG_SQRT_2PI - math.log(s)
@@ -150,6 +170,9 @@ class RegimeClassifier:
         """Forget the past samples (an unrelated sequence follows)."""
         self._prob: list[float] | None = None
         self._revised: int | None = None
+        self._phase = UNKNOWN
+        if self._imm is not None:
+            self._imm.reset()
         self._w_last = math.nan
         self._w_speed = math.nan
 
@@ -159,6 +182,18 @@ class RegimeClassifier:
         of the backward recursion: a fixed-lag smoother of one sample); None when the last call did not inform it
         (the last sample was not filtered -- standing, NaN, the rule -- or started a new sequence)."""
         return self._revised
+
+    @property
+    def phase(self) -> int:
+        """The paper's phase of the last sample (Cunillera 3.2: the ``hmm`` label, or the rule's); with ``imm`` it
+        may differ from the regime (traction/coast cycles around a target speed: regimes TRACTION and COASTING,
+        phase CRUISING); with ``hmm`` and ``rule`` it is the regime."""
+        return self._phase
+
+    @property
+    def imm_probabilities(self) -> tuple[float, ...] | None:
+        """imm: probabilities of (TRACTION, CRUISING, COASTING, BRAKING) after the last sample it filtered."""
+        return self._imm.probabilities() if self._imm is not None else None
 
     @property
     def probabilities(self) -> tuple[float, ...] | None:
@@ -173,14 +208,20 @@ class RegimeClassifier:
         *,
         effort_known: bool | None = None,
         opposing_force: float | None = None,
+        speed_measured: float | None = None,
+        time: float | None = None,
     ) -> int:
-        """Regime of the next sample of the run.
+        """Regime of the next sample of the run; its phase is :attr:`phase` afterwards.
 
         effort: applied effort u (N/kg); acceleration: published acceleration (m/s^2); speed: filtered speed
         (m/s), optional. Optional for ``hmm`` (ResistanceEstimate fields): ``effort_known`` and
-        ``opposing_force`` = resistance + track_force (N/kg), the force the effort works against.
+        ``opposing_force`` = resistance + track_force (N/kg), the force the effort works against. ``imm`` needs
+        ``time`` (s, any origin) and the speed; it uses ``speed_measured`` (m/s; the filtered speed where it is
+        None or NaN) and ``opposing_force`` (effort - acceleration without it). Without ``time`` or speed the
+        ``imm`` regime is the phase.
         """
         self._revised = None
+        self._phase = UNKNOWN
         e = _float(effort)
         a = _float(acceleration)
         if e is None or a is None or math.isnan(e) or math.isnan(a):
@@ -192,13 +233,25 @@ class RegimeClassifier:
                 return UNKNOWN
             if not v >= self._v:  # NaN too
                 self._prob = None
+                if self._imm is not None:
+                    self._imm.restart()
                 return UNKNOWN
         if not self._hmm or not (math.isfinite(e) and math.isfinite(a)):
-            return _rule(e, a, self.config)
+            self._phase = _rule(e, a, self.config)
+            return self._phase
         w_given = _float(opposing_force) if opposing_force is not None else None
         if w_given is not None and not math.isfinite(w_given):
             w_given = None
-        return self._filter(e, a, v, effort_known, w_given)
+        self._phase = phase = self._filter(e, a, v, effort_known, w_given)
+        if self._imm is None:
+            return phase
+        t = _float(time) if time is not None else None
+        if t is None or not math.isfinite(t) or not math.isfinite(v):
+            return phase
+        z = _float(speed_measured) if speed_measured is not None else None
+        if z is None or not math.isfinite(z):
+            z = v
+        return self._imm.step(t, z, w_given if w_given is not None else e - a)
 
     # -- the hidden Markov model ----------------------------------------------------------------------
     def _filter(self, e: float, a: float, v: float, known: bool | None, w_given: float | None) -> int:
@@ -262,6 +315,166 @@ class RegimeClassifier:
         return w
 
 
+_IMM_START = (0.85, 0.05, 0.05, 0.05)
+"""imm: probabilities of (TRACTION, CRUISING, COASTING, BRAKING) at the first moving sample: departing."""
+_IMM_START_ACCEL = (0.3, 0.0, None, -0.3)
+"""imm: the acceleration (m/s^2) each model starts from (None: the coasting -(r + g)); std _IMM_START_STD."""
+_IMM_START_STD = 0.5
+_IMM_CODES = (TRACTION, CRUISING, COASTING, BRAKING)
+_NOISE_FLOOR = 0.2
+"""imm: the learned speed noise stays above this share of ``imm_speed_noise_std``."""
+_NOISE_WEIGHT = 0.05
+"""imm: weight of one sample in the running mean of the absolute second differences (about 20 samples)."""
+_NOISE_MAX_DT = 2.0
+"""imm: the noise is learned from steps of at most this many seconds (over longer ones the acceleration changes)."""
+_GAUSS_ABS = math.sqrt(math.pi / 2.0)
+"""sigma / mean |x| of a zero-mean Gaussian."""
+
+
+class _Imm:
+    """The ``imm`` regime filter (module docstring): four Kalman filters of (speed v, acceleration a), mixed
+    between samples by the regime transition probabilities, weighed by their innovations. Plain floats: one
+    sample costs four 2x2 filter steps."""
+
+    __slots__ = (
+        "_adapt",
+        "_c2",
+        "_dwell",
+        "_h2",
+        "_mu",
+        "_noise",
+        "_noise0",
+        "_noise_min",
+        "_pmax",
+        "_q2",
+        "_r",
+        "_rel2",
+        "_t",
+        "_x",
+        "_z",
+    )
+
+    def __init__(self, cfg: RegimeConfig) -> None:
+        self._adapt = cfg.imm_adapt_noise
+        self._noise0 = cfg.imm_speed_noise_std
+        self._noise_min = _NOISE_FLOOR * cfg.imm_speed_noise_std
+        self._h2 = cfg.imm_hold_accel_std**2
+        self._c2 = cfg.imm_coast_accel_std**2
+        self._rel2 = cfg.resistance_rel_std**2
+        self._q2 = cfg.imm_accel_walk_std**2
+        self._dwell = cfg.imm_mean_dwell
+        self._pmax = cfg.imm_switch_max
+        self.reset()
+
+    def reset(self) -> None:
+        """An unrelated sequence follows: the configured speed noise, no regime."""
+        self._noise = self._noise0  # the sensor's noise, learned over the run (kept across stops)
+        self._r = self._noise0 * self._noise0
+        self._mu: list[float] | None = None
+        self._x: list[list[float]] = []  # per model [v, a, Pvv, Pva, Paa]
+        self._t = math.nan
+        self._z: tuple[float, float, float, float] | None = None  # previous speed, its time, step slope, step dt
+
+    def _learn_noise(self, t: float, z: float) -> None:
+        """The speed sensor's noise from the second differences of the measured speeds: a robust running mean of
+        their absolute values (each clipped at 3 times the current estimate: changes of acceleration are rare),
+        from the configured value, never below ``_NOISE_FLOOR`` of it; at sample periods up to ``_NOISE_MAX_DT``. A
+        stop keeps what was learned."""
+        prev = self._z
+        if prev is None or not t > prev[1]:
+            self._z = (z, t, math.nan, math.nan)
+            return
+        z1, t1, slope1, dt1 = prev
+        dt = t - t1
+        slope = (z - z1) / dt
+        self._z = (z, t, slope, dt)
+        if math.isnan(slope1) or not self._adapt or max(dt, dt1) > _NOISE_MAX_DT:
+            return
+        # slope - slope1 has variance sigma^2 (1/dt^2 + (1/dt + 1/dt1)^2 + 1/dt1^2) for white speed noise sigma
+        scale = math.sqrt(1.0 / (dt * dt) + (1.0 / dt + 1.0 / dt1) ** 2 + 1.0 / (dt1 * dt1))
+        x = min(abs(slope - slope1) / scale, 3.0 * self._noise)
+        mean_abs = (1.0 - _NOISE_WEIGHT) * self._noise / _GAUSS_ABS + _NOISE_WEIGHT * x
+        self._noise = max(_GAUSS_ABS * mean_abs, self._noise_min)
+        self._r = self._noise * self._noise
+
+    def restart(self) -> None:
+        """A standstill: the regimes start over, the learned noise stays."""
+        self._mu = None
+        self._z = None
+
+    def probabilities(self) -> tuple[float, ...] | None:
+        return tuple(self._mu) if self._mu is not None else None
+
+    def step(self, t: float, z: float, w: float) -> int:
+        """The regime at time t (s) given the measured speed z (m/s) and r + g = w (N/kg)."""
+        self._learn_noise(t, z)
+        if self._mu is None or not t > self._t:  # first sample, or time not increasing: start over
+            r, s2 = self._r, _IMM_START_STD**2
+            self._mu = list(_IMM_START)
+            self._x = [[z, -w if a0 is None else a0, r, 0.0, s2] for a0 in _IMM_START_ACCEL]
+            self._t = t
+            return TRACTION
+        dt = t - self._t
+        self._t = t
+        switch = min(self._pmax, -math.expm1(-dt / self._dwell))
+        stay, off = 1.0 - switch, switch / 3.0
+        mu, xs, r = self._mu, self._x, self._r
+        coast_var = self._c2 + self._rel2 * w * w
+        out_x = []
+        weights = []
+        for j in range(4):
+            # mixing: model j's prior is the other models' posteriors weighed by P(i -> j)
+            c = [mu[i] * (stay if i == j else off) for i in range(4)]
+            cj = c[0] + c[1] + c[2] + c[3]
+            v0 = a0 = 0.0
+            for ci, x in zip(c, xs):
+                v0 += ci * x[0]
+                a0 += ci * x[1]
+            v0 /= cj
+            a0 /= cj
+            pvv = pva = paa = 0.0
+            for ci, x in zip(c, xs):
+                dv, da = x[0] - v0, x[1] - a0
+                pvv += ci * (x[2] + dv * dv)
+                pva += ci * (x[3] + dv * da)
+                paa += ci * (x[4] + da * da)
+            pvv /= cj
+            pva /= cj
+            paa /= cj
+            # prediction over dt
+            if j == 1 or j == 2:  # hold / coast: the model's own acceleration over the step
+                ap, va = (0.0, self._h2) if j == 1 else (-w, coast_var)
+                vp = v0 + dt * ap
+                qvv, qva, qaa = pvv + dt * dt * va, dt * va, va
+            else:  # traction / braking: a random walk
+                q = self._q2 * dt
+                ap = a0
+                vp = v0 + dt * a0
+                qaa = paa + q
+                qva = pva + dt * paa + 0.5 * dt * q
+                qvv = pvv + 2.0 * dt * pva + dt * dt * paa + dt * dt * q / 3.0
+            # update with the measured speed
+            sv = qvv + r
+            nu = z - vp
+            kv, ka = qvv / sv, qva / sv
+            an = ap + ka * nu
+            paa_n = max(qaa - ka * qva, 1e-12)
+            lik = math.exp(-0.5 * nu * nu / sv) / math.sqrt(2.0 * math.pi * sv)
+            if j == 0 or j == 3:  # the sign of the effort a + r + g: positive in traction, negative in braking
+                x = (an + w) / math.sqrt(paa_n)
+                lik *= 0.5 * math.erfc(-x / _SQRT2 if j == 0 else x / _SQRT2)
+            weights.append(cj * lik)
+            out_x.append([vp + kv * nu, an, qvv - kv * qvv, qva - kv * qva, paa_n])
+        total = weights[0] + weights[1] + weights[2] + weights[3]
+        if not total > 0.0 or not math.isfinite(total):  # every model rejects the sample: start over from it
+            self._mu = None
+            return self.step(t, z, w)
+        self._mu = [wt / total for wt in weights]
+        self._x = out_x
+        best = max(range(4), key=self._mu.__getitem__)
+        return _IMM_CODES[best]
+
+
 def classify_regimes(
     effort,
     acceleration,
@@ -271,32 +484,66 @@ def classify_regimes(
     effort_known=None,
     opposing_force=None,
     smooth: bool = False,
-) -> np.ndarray:
+    speed_measured=None,
+    time=None,
+    phase: bool = False,
+):
     """``RegimeClassifier.classify`` over a sequence in time order: uint8 array of the broadcast shape.
 
     ``rule``: vectorised. ``hmm``: the classifier's filter over the (flattened) samples in order, as the node
     runs it (:mod:`.regimes_batch`: the same operations arranged for numpy), so the result is the node's
     message for message. ``smooth`` (``hmm`` only; offline): each sample's regime given the whole run
-    (forward-backward) -- more often right (docs/estimator.md), never what the node publishes.
+    (forward-backward) -- more often right (docs/estimator.md), never what the node publishes. ``imm``: the
+    classifier per sample in order (``time`` in s and ``speed`` needed, else the regime is the phase).
+    ``phase``: return (regimes, phases), the phases as :attr:`RegimeClassifier.phase` (with ``hmm`` and ``rule``
+    the regimes themselves).
     """
     cfg = config if config is not None else RegimeConfig()
     e, a = np.broadcast_arrays(np.asarray(effort, dtype=float), np.asarray(acceleration, dtype=float))
-    if cfg.method == "hmm":
-        from .regimes_batch import classify_hmm
+    if cfg.method == "imm":
+        if smooth:
+            raise ValueError("smooth: only with method hmm")
+        out, phases = _classify_each(e, a, cfg, speed, effort_known, opposing_force, speed_measured, time)
+        return (out, phases) if phase else out
+    if cfg.method != "hmm":
+        out = _classify_rule(e, a, cfg, speed, smooth)
+        return (out, out.copy()) if phase else out
+    from .regimes_batch import classify_hmm
 
-        def flat(x, dtype):
-            return None if x is None else np.broadcast_to(np.asarray(x, dtype=dtype), e.shape).ravel()
+    def flat(x, dtype):
+        return None if x is None else np.broadcast_to(np.asarray(x, dtype=dtype), e.shape).ravel()
 
-        out = classify_hmm(
-            e.ravel(),
-            a.ravel(),
-            RegimeClassifier(cfg),
-            flat(speed, float),
-            flat(effort_known, bool),
-            flat(opposing_force, float),
-            smooth,
-        )
-        return out.reshape(e.shape)
+    out = classify_hmm(
+        e.ravel(),
+        a.ravel(),
+        RegimeClassifier(cfg),
+        flat(speed, float),
+        flat(effort_known, bool),
+        flat(opposing_force, float),
+        smooth,
+    ).reshape(e.shape)
+    return (out, out.copy()) if phase else out
+
+
+def _classify_each(e, a, cfg, speed, effort_known, opposing_force, speed_measured, time):
+    """``imm``: RegimeClassifier.classify per sample in order; (regimes, phases) of e's shape."""
+    clf = RegimeClassifier(cfg)
+
+    def flat(x, dtype):
+        return [None] * e.size if x is None else np.broadcast_to(np.asarray(x, dtype=dtype), e.shape).ravel().tolist()
+
+    columns = (flat(speed, float), flat(effort_known, bool), flat(opposing_force, float))
+    columns += (flat(speed_measured, float), flat(time, float))
+    out = np.empty(e.size, dtype=np.uint8)
+    phases = np.empty(e.size, dtype=np.uint8)
+    for i, (ei, ai, v, known, w, z, t) in enumerate(zip(e.ravel().tolist(), a.ravel().tolist(), *columns)):
+        out[i] = clf.classify(ei, ai, v, effort_known=known, opposing_force=w, speed_measured=z, time=t)
+        phases[i] = clf.phase
+    return out.reshape(e.shape), phases.reshape(e.shape)
+
+
+def _classify_rule(e, a, cfg, speed, smooth) -> np.ndarray:
+    """``rule`` vectorised."""
     if smooth:
         raise ValueError("smooth: only with method hmm (the rule has no state to smooth)")
     coast = np.abs(e) <= cfg.effort_tolerance

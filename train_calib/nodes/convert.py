@@ -230,8 +230,8 @@ def regime_input_from_msg(msg: Any) -> RegimeInput:
 # -- DrivingRegime ----------------------------------------------------------------------------------
 
 
-def _regime_values(sample: RegimeInput | EstimateSample, regime: int) -> tuple:
-    """The DrivingRegime fields after the header."""
+def _regime_values(sample: RegimeInput | EstimateSample, regime: int, phase: int | None) -> tuple:
+    """The DrivingRegime fields after the header (phase None: the regime)."""
     return (
         int(sample.run_id),
         int(regime),
@@ -241,16 +241,26 @@ def _regime_values(sample: RegimeInput | EstimateSample, regime: int) -> tuple:
         float(sample.acceleration),
         float(sample.v_measured),
         int(sample.effort_source),
+        int(regime if phase is None else phase),
     )
 
 
-def regime_to_msg(sample: RegimeInput | EstimateSample, regime: int, frame_id: str = "") -> DrivingRegime:
-    return message_with_header(DrivingRegime, sample.stamp_ns, frame_id, _regime_values(sample, regime))
+def regime_to_msg(
+    sample: RegimeInput | EstimateSample, regime: int, frame_id: str = "", phase: int | None = None
+) -> DrivingRegime:
+    return message_with_header(DrivingRegime, sample.stamp_ns, frame_id, _regime_values(sample, regime, phase))
 
 
-def regime_to_cdr(sample: RegimeInput | EstimateSample, regime: int, frame_id: str = "") -> bytes:
+def regime_to_cdr(
+    sample: RegimeInput | EstimateSample, regime: int, frame_id: str = "", phase: int | None = None
+) -> bytes:
     """The serialized DrivingRegime (plain CDR, what rclpy would publish for regime_to_msg)."""
-    return to_cdr(_REGIME, sample.stamp_ns, frame_id, _regime_values(sample, regime))
+    return to_cdr(_REGIME, sample.stamp_ns, frame_id, _regime_values(sample, regime, phase))
+
+
+def phase_from_msg(msg: Any) -> int:
+    """A DrivingRegime's phase (the paper's regime notion); a message recorded before the field: its regime."""
+    return int(getattr(msg, "phase", msg.regime))
 
 
 # -- DrivingFeatures --------------------------------------------------------------------------------
@@ -303,6 +313,7 @@ __all__ = [
     "measurement_to_cdr",
     "measurement_to_msg",
     "message_with_header",
+    "phase_from_msg",
     "regime_input_from_msg",
     "regime_to_cdr",
     "regime_to_msg",

@@ -55,10 +55,10 @@ class RegimeNode(TrainCalibNode):
     def _on_estimate(self, msg: ResistanceEstimate) -> None:
         self._publish(self.stream.push(regime_input_from_msg(msg)))
 
-    def _publish(self, pairs: list) -> None:
-        for sample, regime in pairs:
+    def _publish(self, triples: list) -> None:
+        for sample, regime, phase in triples:
             self._counts[regime] += 1
-            self.publish(REGIME_TOPIC, regime_to_cdr(sample, regime, sample.frame_id))
+            self.publish(REGIME_TOPIC, regime_to_cdr(sample, regime, sample.frame_id, phase))
 
     def end_of_input(self) -> None:
         self._publish(self.stream.flush())

@@ -30,7 +30,7 @@ from ..window import WindowCalibrator, WindowConfig, WindowFit
 from .cdr import layout
 from .common import WARN, TrainCalibNode, run_node
 from .config import MEASUREMENT_TOPIC, REGIME_TOPIC, WINDOW_TOPIC, TrainFile
-from .convert import measurement_from_msg, message_with_header, stamp_to_ns, to_cdr
+from .convert import measurement_from_msg, message_with_header, phase_from_msg, stamp_to_ns, to_cdr
 
 _WINDOW_LAYOUT = layout(WindowResistance)
 _NAN9 = (math.nan,) * 9  # pooled_covariance of a WindowFit that carries none
@@ -115,7 +115,7 @@ class WindowCalibNode(TrainCalibNode):
 
     def _on_regime(self, msg: DrivingRegime) -> None:
         key = (int(msg.run_id), stamp_to_ns(msg.header.stamp))
-        self._regimes[key] = int(msg.regime)
+        self._regimes[key] = phase_from_msg(msg)  # the paper's phase (the pipeline's too)
         self._newest_regime = max(self._newest_regime, key)
         self._release()
 
