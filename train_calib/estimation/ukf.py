@@ -1094,17 +1094,20 @@ class ResistanceEstimator:
             return -(d0 + (d1 + d2 * wh) * wh + (r1 + r2 * (2.0 * vh + dvh)) * dvh)
 
         dv0, d00, d10, d20 = c * l10, c * l20, c * l30, c * l40
+        ap, am = da(dv0, d00, d10, d20), da(-dv0, -d00, -d10, -d20)
+        o0, e0 = 0.5 * (ap - am), 0.5 * (ap + am)
         dv1, d01, d11, d21 = c * l11, c * l21, c * l31, c * l41
-        d02, d12, d22, d13, d23, d24 = c * l22, c * l32, c * l42, c * l33, c * l43, c * l44
-        plus = ((dv0, d00, d10, d20), (dv1, d01, d11, d21), (0.0, d02, d12, d22), (0.0, 0.0, d13, d23),
-                (0.0, 0.0, 0.0, d24))  # fmt: skip
-        minus = ((-dv0, -d00, -d10, -d20), (-dv1, -d01, -d11, -d21), (0.0, -d02, -d12, -d22), (0.0, 0.0, -d13, -d23),
-                 (0.0, 0.0, 0.0, -d24))  # fmt: skip
-        out: list[float] = []
-        for dp, dm in zip(plus, minus):
-            ap, am = da(*dp), da(*dm)
-            out += (0.5 * (ap - am), 0.5 * (ap + am))
-        return tuple(out)
+        ap, am = da(dv1, d01, d11, d21), da(-dv1, -d01, -d11, -d21)
+        o1, e1 = 0.5 * (ap - am), 0.5 * (ap + am)
+        d02, d12, d22 = c * l22, c * l32, c * l42
+        ap, am = da(0.0, d02, d12, d22), da(0.0, -d02, -d12, -d22)
+        o2, e2 = 0.5 * (ap - am), 0.5 * (ap + am)
+        d13, d23 = c * l33, c * l43
+        ap, am = da(0.0, 0.0, d13, d23), da(0.0, 0.0, -d13, -d23)
+        o3, e3 = 0.5 * (ap - am), 0.5 * (ap + am)
+        d24 = c * l44
+        ap, am = da(0.0, 0.0, 0.0, d24), da(0.0, 0.0, 0.0, -d24)
+        return o0, e0, o1, e1, o2, e2, o3, e3, 0.5 * (ap - am), 0.5 * (ap + am)
 
     def _propagate_sv(
         self, f: _Filter, dt: float, abar: float, m0: float, m1: float, q: float, grouped: bool
@@ -1143,8 +1146,7 @@ class ResistanceEstimator:
         form; ``decoupled``: r enters the process at its mean (consider step)."""
         x = f.x
         lf = f.L
-        p02, p03, p04, p12, p13, p14, p22, p23, p24, p33, p34, p44 = (f.P[i] for i in (2, 3, 4, 6, 7, 8, 9, 10, 11,
-                                                                                        12, 13, 14))  # fmt: skip
+        _, _, p02, p03, p04, _, p12, p13, p14, p22, p23, p24, p33, p34, p44 = f.P
         h = 0.5 * dt
         a0, vh = self._mean_acceleration(x, u - g, h)
         if decoupled:  # only the v-components of the sigma points move a
