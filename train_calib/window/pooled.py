@@ -17,7 +17,10 @@ the steps whose power shows regeneration: the electric brake is measured, the bl
 
 Variance of a window's equation (N/kg)^2: the speed ends above, plus (``power_noise`` f_k)^2 per row (power
 meter noise, 1 % relative), plus the square of a bound on the bias from the power and speed stamps being up to
-half a sample period apart (|mean(f / v)| |mean(a)| dt / 2: dominant at a departure, negligible in cruise).
+half a sample period apart (|mean(f / v)| |mean(a)| dt / 2: dominant at a departure, negligible in cruise), plus
+the square of a bound on the effort changes the rows miss between two samples (the row holds the force of its first
+sample; the switch between traction and coasting falls anywhere in the step, and power and speed stamps differ):
+0.5 |sum of the changes of f within the runs of rows| / n, which telescopes to the runs' ends.
 
 Pooling (:class:`PooledResistance`): the windows that do not overlap (each sample counted once) are the rows of
 a weighted least squares with the train file's prior, theta ~ N(r, (0.18)^2 r r^T + diag((0.10 r_i)^2)), so
@@ -51,7 +54,10 @@ HUBER = 4.0
 MIN_ROWS = 8
 """A window's equation needs at least this many rows (its resistance is NaN below)."""
 
-_SUMS = 8  # n, x1, x2, y, f/v, a, f^2, starts of runs of rows
+_SUMS = 9  # n, x1, x2, y, f/v, a, f^2, starts of runs of rows, change of f within runs of rows
+SWITCH = 0.5
+"""Bound on the share of an effort change the window's mean misses, per unit of the net change of f over its runs
+of rows: the row holds f of its first sample (forward difference) and power and speed stamps differ."""
 
 
 def prior_covariance(davis: Davis | tuple[float, float, float]) -> np.ndarray:
@@ -111,6 +117,7 @@ class WindowEquations:
         self._base: tuple[float, ...] = (0.0,) * _SUMS  # prefix sums before the oldest step in the window
         self._total: tuple[float, ...] = (0.0,) * _SUMS
         self._in_run = False  # the last step was a row used here
+        self._last_f = 0.0  # its force, N/kg
         self.sample_period = sample_period  # s, the last step's length (half of it bounds the stamp offset)
 
     def clear(self) -> None:
@@ -129,9 +136,12 @@ class WindowEquations:
             return
         _, x1, x2, y, _, v, a, f = row
         continues = self._in_run
+        change = f - self._last_f if continues else 0.0
         self._in_run = True
-        n, s1, s2, sy, sfv, sa, sff, runs = self._total
-        self._total = (n + 1.0, s1 + x1, s2 + x2, sy + y, sfv + f / v, sa + a, sff + f * f, runs + (not continues))
+        self._last_f = f
+        n, s1, s2, sy, sfv, sa, sff, runs, sdf = self._total
+        self._total = (n + 1.0, s1 + x1, s2 + x2, sy + y, sfv + f / v, sa + a, sff + f * f, runs + (not continues),
+                       sdf + change)  # fmt: skip
         self._cum.append((end_ns, self._total, continues))
 
     def expire(self, min_ns: int) -> None:
@@ -144,7 +154,7 @@ class WindowEquations:
         """The window's equation (None with fewer than MIN_ROWS rows); v_variance: of one speed sample, (m/s)^2."""
         if not self._cum:
             return None
-        n, s1, s2, sy, sfv, sa, sff, runs = (t - b for t, b in zip(self._total, self._base))
+        n, s1, s2, sy, sfv, sa, sff, runs, sdf = (t - b for t, b in zip(self._total, self._base))
         if n < MIN_ROWS - 0.5:
             return None
         runs += self._cum[0][2]  # a run of rows cut by the window's start: its start is not in the window
@@ -153,7 +163,8 @@ class WindowEquations:
         speed = 2.0 * runs * v_variance / (span * span)
         power = POWER_NOISE * POWER_NOISE * sff / (n * n)
         stamps = abs(sfv / n) * abs(sa / n) * 0.5 * dt
-        variance = speed + power + stamps * stamps
+        switch = SWITCH * abs(sdf) / n
+        variance = speed + power + stamps * stamps + switch * switch
         start_ns = self._cum[0][0]
         return WindowEquation(start_ns, self._cum[-1][0], round(n), (1.0, s1 / n, s2 / n), sy / n, variance)
 
