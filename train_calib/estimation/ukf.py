@@ -82,6 +82,30 @@ VARIANCE_RANGE = (1e-12, 1e12)  # m^2 or (m/s)^2
 _CLIP_ONLY = (1,)  # v >= 0 is clipped: a speed below 0 says nothing about r (standstill noise would move it)
 RELOCK_COUNT = 3  # gated positions in a row (besides gate_relock_time) before s is re-initialised there
 _JITTER = 0.02  # relative tolerance on time windows for stamp jitter (as SpeedSlope)
+COUNTERS = (
+    "updates",
+    "runs",
+    "repairs",
+    "resets",
+    "gaps",
+    "degraded",
+    "projections",
+    "known_effort_coast",
+    "known_effort_rejected",
+    "known_effort_power",
+    "known_effort_power_coast",
+    "power_regenerating",
+    "power_braking_unseen",
+    "coast_unconfirmed",
+    "nonpositive_dt",
+    "invalid_input",
+    "position_missing",
+    "input_repaired",
+    "position_gated",
+    "position_relocks",
+    "nis_resets",
+)
+"""Diagnostic counters of ResistanceEstimator (``counters``), in this order."""
 
 
 @lru_cache(maxsize=64)
@@ -299,29 +323,7 @@ class ResistanceEstimator:
         self._relock_ns = int(guard.gate_relock_time * 1e9)
         self._gate_accel = guard.gate_accel_std
         self._nis_reset_steps = guard.nis_reset_windows * cfg.nis_window
-        self.counters: dict[str, int] = {
-            "updates": 0,
-            "runs": 0,
-            "repairs": 0,
-            "resets": 0,
-            "gaps": 0,
-            "degraded": 0,
-            "projections": 0,
-            "known_effort_coast": 0,
-            "known_effort_rejected": 0,
-            "known_effort_power": 0,
-            "known_effort_power_coast": 0,
-            "power_regenerating": 0,
-            "power_braking_unseen": 0,
-            "coast_unconfirmed": 0,
-            "nonpositive_dt": 0,
-            "invalid_input": 0,
-            "position_missing": 0,
-            "input_repaired": 0,
-            "position_gated": 0,
-            "position_relocks": 0,
-            "nis_resets": 0,
-        }
+        self.counters: dict[str, int] = dict.fromkeys(COUNTERS, 0)
         self.rejected: str | None = None  # why the latest measurement was not used (None: it was)
         self._h = _Filter()  # the published (output) filter
         self._rf = _Filter() if self._lookahead else self._h  # the resistance filter (the same one without look-ahead)
