@@ -25,8 +25,9 @@ Without traction power only coasting (u = 0) tells r: there a = -(r(v) + g(s)). 
 
 :func:`fit_coasts` is the whole-run (offline) estimate; :class:`CoastRegression` the causal one used by the UKF
 (``resistance_learning: coast_regression``): it re-detects on the samples since the last completed stretch and
-adds a stretch once it is over (its end W/2 + trim in the past), so the published r moves at the end of each
-coast. Knowledge carries over across stops (run_id changes) within one recording.
+adds a stretch once it is over (its end W/2 + trim in the past), and a long coast in pieces while it lasts, so
+the published r moves during and at the end of each coast. Knowledge carries over across stops (run_id changes)
+within one recording.
 """
 
 from __future__ import annotations
@@ -94,18 +95,25 @@ def davis_value(r: np.ndarray | tuple[float, float, float], v: float | np.ndarra
     return r[0] + (r[1] + r[2] * v) * v
 
 
+def noise_from_differences(d2: np.ndarray, d3: np.ndarray, quantum: float) -> float:
+    """Speed noise std (m/s) from second and third differences of the moving speeds: the smaller of their MADs
+    (scaled by sqrt(6), sqrt(20)) -- a changing acceleration inflates the second differences at 10 s sampling, the
+    third cancel a steady change -- and at least the resolution / sqrt(12)."""
+    mads = [float(np.median(np.abs(d))) / 0.6745 / math.sqrt(c) for d, c in ((d2, 6.0), (d3, 20.0)) if d.size]
+    robust = min(mads) if mads else 0.0
+    return max(robust, quantum / math.sqrt(12.0), _MIN_SPEED_NOISE)
+
+
 def speed_noise(v: np.ndarray) -> float:
-    """Std of the speed measurement noise (m/s) from the data: MAD of second differences while moving (> 5 m/s),
-    at least the resolution (smallest step between values) / sqrt(12)."""
-    if v.size < 3:
+    """Std of the speed measurement noise (m/s) from the data while moving (> 5 m/s): noise_from_differences."""
+    if v.size < 4:
         return 0.08
     dv = np.abs(np.diff(v))
     steps = dv[dv > 1e-4]
     quantum = float(np.min(steps)) if steps.size else 0.0
-    moving = v[1:-1] > 5.0
-    d2 = (v[2:] - 2.0 * v[1:-1] + v[:-2])[moving]
-    robust = float(np.median(np.abs(d2))) / 0.6745 / math.sqrt(6.0) if d2.size else 0.0
-    return max(robust, quantum / math.sqrt(12.0), _MIN_SPEED_NOISE)
+    d2 = (v[2:] - 2.0 * v[1:-1] + v[:-2])[v[1:-1] > 5.0]
+    d3 = (v[3:] - 3.0 * v[2:-1] + 3.0 * v[1:-2] - v[:-3])[v[1:-2] > 5.0]
+    return noise_from_differences(d2, d3, quantum)
 
 
 def local_slopes(
@@ -436,12 +444,14 @@ def fit_coasts(
 class CoastRegression:
     """Causal coast regression: ``push`` each measurement; r and its covariance move when a stretch is over.
 
-    Every ``REFRESH`` s the detection of :func:`fit_coasts` runs over the samples kept; a stretch is used once its
-    last candidate step lies W/2 + trim in the past (every slope that decided it saw its whole window) and it
-    began after the last stretch used. Kept are the samples from W before the first candidate run that is not over
-    yet, or before the horizon (so a pass costs the length of the open coast, not of the recording). sigma_v is
-    estimated from every moving sample seen (a bounded sample of second differences); W from sigma_v and the
-    highest speed so far.
+    Every ``REFRESH`` s (and ``REFRESH_PERIODS`` periods, and at the first slow sample after moving) the detection
+    of :func:`fit_coasts` runs over the samples kept. A stretch is used once it is over: the step after its last
+    candidate step decided (its slope window complete), its trimmed end W/2 before that. A coast still going on is
+    used in pieces of at least two chunks that end W before the latest sample (the trim of its unknown end); the
+    pieces are one coast and share their common error. Each piece starts where the samples used so far end. Kept
+    are the samples from W before the first candidate run that is not over yet, or before the horizon (a pass
+    costs the length of the open coast, not of the recording). sigma_v comes from every moving sample seen (a
+    bounded sample of second and third differences); W from sigma_v and the highest speed so far.
     """
 
     REFRESH = 20.0  # s between detections ...
@@ -463,16 +473,18 @@ class CoastRegression:
         self._tun: list[float] = []
         self._run: list[int] = []
         self._power: list[int] = []
-        self._d2: list[float] = []
+        self._d2: list[float] = []  # second differences of the moving speeds (noise estimate)
+        self._d3: list[float] = []  # third differences
         self._quantum = math.inf
         self._v_max = 0.0
         self._last_detect = -math.inf
         self.window = math.nan  # s, the slope window of the latest detection
-        self._consumed = -math.inf  # t of the last candidate step of the latest stretch used (s)
+        self._used_until = -math.inf  # t of the last sample used in a stretch (s)
         self._d2_seen = 0
         self._sv, self._sv_at = math.nan, 0
         self._period = math.nan  # s, the latest sample interval
         self._moved = False  # a moving sample since the last detection
+        self._moving_before = False  # the previous sample was moving
         self._open = False  # the last detection left a candidate run open
 
     def reset(self) -> None:
@@ -486,9 +498,10 @@ class CoastRegression:
         return self._sv
 
     def _sigma_v(self) -> float:
-        robust = float(np.median(np.abs(self._d2))) / 0.6745 / math.sqrt(6.0) if self._d2 else 0.0
         q = self._quantum if math.isfinite(self._quantum) else 0.0
-        return max(robust, q / math.sqrt(12.0), _MIN_SPEED_NOISE) if (self._d2 or q) else 0.08
+        if not (self._d2 or q):
+            return 0.08
+        return noise_from_differences(np.asarray(self._d2), np.asarray(self._d3), q)
 
     def push(self, t: float, v: float, g: float, tunnel: float, run_id: int, power: int = POWER_UNKNOWN) -> bool:
         """One measurement (t in s, v m/s, g N/kg, power a POWER_* state); True when r or its covariance changed."""
@@ -505,6 +518,10 @@ class CoastRegression:
                 self._d2_seen += 1
                 if len(self._d2) > self.NOISE_SAMPLES:
                     del self._d2[: len(self._d2) - self.NOISE_SAMPLES]
+                if len(self._v) >= 3 and self._run[-3] == run_id and self._v[-2] > 5.0:
+                    self._d3.append(v - 3.0 * self._v[-1] + 3.0 * self._v[-2] - self._v[-3])
+                    if len(self._d3) > self.NOISE_SAMPLES:
+                        del self._d3[: len(self._d3) - self.NOISE_SAMPLES]
         self._t.append(t)
         self._v.append(v)
         self._g.append(g)
@@ -514,8 +531,11 @@ class CoastRegression:
         self._v_max = max(self._v_max, v)
         if len(self._t) >= 2:
             self._period = self._t[-1] - self._t[-2]
-        self._moved = self._moved or v >= self.settings.coast_min_speed
-        if t - self._last_detect < max(self.REFRESH, self.REFRESH_PERIODS * self._period):
+        moving = v >= self.settings.coast_min_speed
+        stopped = self._moving_before and not moving  # the first slow sample after moving: a coast before is over
+        self._moving_before = moving
+        self._moved = self._moved or moving
+        if not stopped and t - self._last_detect < max(self.REFRESH, self.REFRESH_PERIODS * self._period):
             return False
         self._last_detect = t
         if not self._moved and not self._open:  # standing since the last detection: nothing can have changed
@@ -543,17 +563,17 @@ class CoastRegression:
         step = by_speed | by_power
         trim = 0.5 * window
         bounds = bounds_of(arr, by_speed, by_power, cfg, window, period)
-        horizon = arr.t[-1] - 0.5 * window - trim  # a stretch whose last candidate step is before this is over
-        done = [b for b in bounds if arr.t[b[3]] <= horizon and arr.t[b[2]] > self._consumed]
+        horizon = arr.t[-1] - 0.5 * window - trim  # a piece of an open coast ends before this (its trim included)
+        pieces = self._new_pieces(arr, bounds, horizon, arr.t[-1] - 0.5 * window - period)
         changed = False
-        if done:
-            for k0, k1, _, _ in done:
+        if pieces:
+            for k0, k1 in pieces:
                 st = stretch_equations(arr, k0, k1, cfg, self.prior, sv, self.tunnel_factor)
                 assign_group(st, self.stretches[-1] if self.stretches else None, 2.0 * window)
                 self.stretches.append(st)
             r, cov = posterior(self.prior, self.P0, self.stretches)
             self.r, self.covariance = nonnegative(r, cov), cov
-            self._consumed = float(arr.t[done[-1][3]])
+            self._used_until = float(arr.t[pieces[-1][1]])
             changed = True
         # the next detection needs the samples from W before the first candidate run not over yet (or before the
         # horizon): the older ones are dropped
@@ -568,6 +588,29 @@ class CoastRegression:
             keep_t = min(keep_t, float(arr.t[i - 1]) - window if i > 0 else float(arr.t[0]))
         self._keep_from(int(np.searchsorted(arr.t, keep_t)))
         return changed
+
+    def _new_pieces(
+        self, arr: RunArrays, bounds: list[tuple[int, int, int, int]], horizon: float, decided: float
+    ) -> list[tuple[int, int]]:
+        """Sample ranges to add now: each stretch that is over (the step after its last candidate step is decided:
+        before ``decided``, its slope window complete), from where the samples used so far end; and of a coast
+        still going on, its part up to ``horizon`` (W/2 before the decided samples: the trim of its unknown end)
+        once that is two chunks long (a long coast teaches r while it lasts; its pieces are one coast, sharing
+        their common error)."""
+        cfg = self.settings
+        period = _period(arr.t)
+        min_duration = max(cfg.coast_min_duration, 3.0 * period)
+        min_piece = max(2.0 * cfg.coast_chunk, min_duration)
+        out = []
+        for k0, k1, _, j in bounds:
+            if arr.t[k1] <= self._used_until:
+                continue
+            over = j + 1 < arr.t.size and arr.t[j + 1] <= decided
+            start = k0 if arr.t[k0] > self._used_until else int(np.searchsorted(arr.t, self._used_until, "right"))
+            end = k1 if over else min(k1, int(np.searchsorted(arr.t, horizon, "right")) - 1)
+            if end > start and arr.t[end] - arr.t[start] >= (min_duration if over else min_piece):
+                out.append((start, end))
+        return out
 
     def _keep_from(self, k: int) -> None:
         if k <= 0:
