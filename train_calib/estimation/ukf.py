@@ -269,6 +269,8 @@ class ResistanceEstimator:
     ``safeguards``: the position gate and the recovery rules (:class:`SafeguardConfig`, docs/reliability.md).
     With ``exploit_known`` and ``coast_confirm_ahead`` > 0 the resistance is learnt ``coast_confirm_ahead``
     behind the latest measurement (module docstring); ``flush()`` uses the measurements still waiting.
+    ``process(StepInput) -> StepResult`` is ``update`` without the EstimateSample (the whole-run API uses it);
+    ``record_trace()`` / ``trace`` give the resistance filter's own steps, ``predict()`` its prediction.
     """
 
     def __init__(
