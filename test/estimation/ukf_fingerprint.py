@@ -7,6 +7,11 @@ synthetic runs at 10 s and 1 Hz, and on the bundled bags through ``train_calib.p
 ``update()``; the bags' measurements also through the whole-run API).
 
     .venv/bin/python test/estimation/ukf_fingerprint.py [-v]     # -v: one hash per case too
+    .venv/bin/python test/estimation/ukf_fingerprint.py --against REV [FILE ...]
+
+``--against REV``: the fingerprint of this tree and of a copy of it whose FILEs (default the filter's own:
+estimation/ukf.py and estimation/run.py) are taken from git revision REV -- the check of a refactoring while other
+files of the working tree change under it (both hashes move with them; they must stay equal).
 """
 
 from __future__ import annotations
@@ -90,5 +95,38 @@ def main(verbose: bool = False) -> str:
     return digest
 
 
+def against(rev: str, files: list[str]) -> bool:
+    """Fingerprint of the working tree and of a temporary copy with ``files`` from ``rev``; True when equal."""
+    import shutil
+    import subprocess
+    import tempfile
+
+    root = Path(__file__).resolve().parents[2]
+    hashes = []
+    with tempfile.TemporaryDirectory() as tmp:
+        copy = Path(tmp)
+        for name in ("train_calib", "test", "config"):
+            shutil.copytree(root / name, copy / name, ignore=shutil.ignore_patterns("__pycache__", "*.so"))
+        shutil.copy(root / "package.xml", copy / "package.xml")
+        (copy / "bags").symlink_to(root / "bags")
+        for label, tree in (("working tree", root), (rev, copy)):
+            if tree is copy:
+                for f in files:
+                    text = subprocess.run(["git", "-C", str(root), "show", f"{rev}:{f}"], check=True,
+                                          capture_output=True).stdout  # fmt: skip
+                    (copy / f).write_bytes(text)
+            out = subprocess.run([sys.executable, str(tree / "test/estimation/ukf_fingerprint.py")], check=True,
+                                 capture_output=True, text=True, cwd=tree,
+                                 env={**__import__("os").environ, "PYTHONPATH": str(tree)}).stdout  # fmt: skip
+            hashes.append(out.split()[1])
+            print(f"{label}: {hashes[-1]}")
+    print("identical" if hashes[0] == hashes[1] else "DIFFERENT")
+    return hashes[0] == hashes[1]
+
+
 if __name__ == "__main__":
-    main("-v" in sys.argv[1:])
+    args = sys.argv[1:]
+    if args and args[0] == "--against":
+        sys.exit(0 if against(args[1], args[2:] or ["train_calib/estimation/ukf.py",
+                                                    "train_calib/estimation/run.py"]) else 1)  # fmt: skip
+    main("-v" in args)
