@@ -348,7 +348,10 @@ class RegimeConfig(ParamSet):
         high=1e5,
     )
     imm_switch_max: float = param(
-        0.3, "imm: at most this probability of a change between two samples (long sample periods)", low=0.0, high=0.75,
+        0.3,
+        "imm: at most this probability of a change between two samples (long sample periods)",
+        low=0.0,
+        high=0.75,
         low_open=True,
     )
     effort_tolerance: float = param(

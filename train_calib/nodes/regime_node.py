@@ -5,12 +5,15 @@ The core's :class:`~train_calib.estimation.RegimeClassifier` (Cunillera et al. 2
 effort works against, ``resistance + track_force`` (:func:`train_calib.pipeline.classify_estimate`, the offline
 pipeline's call too). Standing (slower than ``standstill_speed``) is UNKNOWN.
 
-``method: hmm`` (the default) is causal and stateful: the forward filter of a hidden Markov model carries its
-belief over the regimes from sample to sample (restarted by a standstill). ``method: rule`` is the paper's
-stateless per-sample rule. A parameter change at run time takes effect at once by building a new classifier:
-with ``hmm`` this restarts the belief (the next sample is classified as the first of a departure).
-``lag_samples: 1`` publishes each sample's regime when the next estimate has come, revised with it
-(:class:`train_calib.pipeline.RegimeStream`; the message keeps the sample's own stamp and frame_id).
+Each message carries two labels: ``regime``, what the train does at that sample (``method: imm``, the default:
+an interacting multiple-model filter on the measured speeds and stamps; traction/coast cycles are traction and
+coasting), and ``phase``, the paper's phase (the ``hmm`` below; with ``hmm`` or ``rule`` the regime itself), which
+feature_node and window_calib_node use. ``hmm`` and ``imm`` are causal and stateful: their belief over the
+regimes is carried from sample to sample (restarted by a standstill). ``method: rule`` is the paper's stateless
+per-sample rule. A parameter change at run time takes effect at once by building a new classifier: this restarts
+the belief (the next sample is classified as the first of a departure). ``lag_samples: 1`` publishes each sample
+when the next estimate has come, its phase revised with it (:class:`train_calib.pipeline.RegimeStream`; the
+message keeps the sample's own stamp and frame_id).
 """
 
 from __future__ import annotations
