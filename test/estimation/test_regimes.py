@@ -258,6 +258,36 @@ def test_hmm_is_total_on_any_sequence(rows):
         assert p is None or (abs(sum(p) - 1.0) < 1e-9 and all(0.0 <= x <= 1.0 for x in p))
 
 
+@settings(max_examples=150, deadline=None)
+@given(
+    rows=st.lists(
+        st.tuples(
+            st.floats(allow_nan=True, allow_infinity=True, width=32),  # effort
+            st.floats(allow_nan=True, allow_infinity=True, width=32),  # acceleration
+            st.one_of(st.floats(allow_nan=True, allow_infinity=True, width=32), st.none()),  # speed
+            st.one_of(st.floats(allow_nan=True, allow_infinity=True, width=32), st.none()),  # r + g
+            st.one_of(st.floats(allow_nan=True, allow_infinity=True, width=32), st.none()),  # measured speed
+            st.one_of(st.floats(allow_nan=True, allow_infinity=True, width=32), st.none()),  # time step (any sign)
+        ),
+        min_size=1,
+        max_size=30,
+    )
+)
+def test_imm_is_total_on_any_sequence(rows):
+    """Any input, time going backwards or standing still included: a regime code, probabilities that sum to 1, and
+    the classifier keeps going (the node must not stop on a bad sample)."""
+    c = RegimeClassifier()
+    clock = 0.0
+    for e, a, v, w, z, dt in rows:
+        clock = clock + dt if dt is not None and math.isfinite(clock + dt) else clock
+        t = None if dt is None else clock if math.isfinite(dt) else dt
+        r = c.classify(e, a, v, opposing_force=w, speed_measured=z, time=t)
+        assert r in (UNKNOWN, TRACTION, CRUISING, COASTING, BRAKING)
+        assert c.phase in (UNKNOWN, TRACTION, CRUISING, COASTING, BRAKING)
+        p = c.imm_probabilities
+        assert p is None or (abs(sum(p) - 1.0) < 1e-9 and all(0.0 <= x <= 1.0 for x in p)), p
+
+
 # -- offline smoothing (forward-backward) ---------------------------------------------------------------------
 
 
