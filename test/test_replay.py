@@ -119,7 +119,14 @@ def test_replay_writes_output_bag_summary_and_report(bag, tmp_path, capsys):
     png = (out / "report.png").read_bytes()
     assert png[:8] == b"\x89PNG\r\n\x1a\n"
     width, height = int.from_bytes(png[16:20], "big"), int.from_bytes(png[20:24], "big")
-    assert (width, height) == (1100, 1500)
+    assert (width, height) == (1100, 1850)  # six panels against time, r(v) against speed
+    # summary.json: the configuration, the on-board r(v) with sigma, the whole run's best estimate
+    assert summary["ukf_preset"] == "learning"
+    for kmh in ("40", "80", "120"):
+        on_board, best = summary["final"]["resistance_at_kmh"][kmh], summary["best"]["resistance_at_kmh"][kmh]
+        assert on_board["std"] > 0.0 and best["std"] > 0.0
+        assert abs(best["value"] - reference.best.resistance(int(kmh) / 3.6)[0]) < 1e-12
+    assert summary["best"]["coasting_stretches"] == len(reference.best.stretches)
     # a second replay into the same directory is refused unless --overwrite
     assert cli.main(argv) == 2
     assert "output.mcap: already exists" in capsys.readouterr().err

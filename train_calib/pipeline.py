@@ -291,7 +291,8 @@ def whole_run_best(measurements: list[Measurement], estimator: ResistanceEstimat
         return None
     series = MeasurementSeries.from_measurements(measurements)
     settings = CoastSettings.from_config(estimator.config)
-    return fit_coasts(RunArrays.from_series(series), estimator.train, settings, estimator.prior)
+    arrays = RunArrays.from_series(series, estimator.train, settings)
+    return fit_coasts(arrays, estimator.train, settings, estimator.prior)
 
 
 def bag_messages(bag: str | Path) -> Iterator[tuple[str, Any]]:

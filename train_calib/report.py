@@ -7,9 +7,12 @@ Panels, against time since the first measurement:
 2. acceleration with the maximum service deceleration (dashed);
 3. applied effort u = f_t - f_b with the tractive envelope f_t,max(v) and the brake limit (dashed);
 4-6. r0, r1, r2: the estimate (red) with its +-2 sigma band, the manufacturer value (blue dashed) and,
-   when known, the simulated truth (green dotted).
+   when known, the simulated truth (green dotted);
+7. r(v) against speed, the identifiable quantity: the train file's curve with its prior +-2 sigma, the on-board
+   estimate of the last message and the whole run's best estimate (coast regression) each with +-2 sigma, the
+   truth when known, and the speeds at which the run coasted (the stretches the regression used).
 
-Run boundaries are marked with thin vertical lines.
+Run boundaries are marked with thin vertical lines; the title names the configuration.
 """
 
 from __future__ import annotations
@@ -36,8 +39,11 @@ def write_report(
     *,
     truth: dict[str, float] | None = None,
     title: str = "",
+    best: dict | None = None,
+    configuration: str = "",
 ) -> Path:
-    """Draw the report to `path` (PNG)."""
+    """Draw the report to `path` (PNG); ``best``: summary.json's whole-run estimate; ``configuration``: the UKF
+    preset that ran (in the title)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -45,8 +51,14 @@ def write_report(
     from matplotlib.collections import LineCollection
 
     est, meas, reg = outputs.est, outputs.meas, outputs.regime
-    fig, axes = plt.subplots(6, 1, figsize=(11, 15), sharex=True, gridspec_kw={"height_ratios": [2.2, 1, 1.4, 1, 1, 1]})
+    fig = plt.figure(figsize=(11, 18.5))
+    grid = fig.add_gridspec(7, 1, height_ratios=[2.2, 1, 1.4, 1, 1, 1, 2.0], hspace=0.35)
+    ax_v = fig.add_subplot(grid[0])
+    axes = [ax_v] + [fig.add_subplot(grid[i], sharex=ax_v) for i in range(1, 6)]
+    ax_rv = fig.add_subplot(grid[6])
     ax_v, ax_a, ax_u, *ax_r = axes
+    if configuration:
+        title = f"{title or 'UKF running-resistance estimation'} [ukf preset {configuration}]"
     if not est:
         ax_v.text(0.5, 0.5, "no estimates were published", ha="center", va="center", transform=ax_v.transAxes)
         fig.savefig(path, dpi=100)
@@ -112,10 +124,47 @@ def write_report(
     for ax in axes:
         ax.grid(alpha=0.25)
     axes[-1].set_xlabel("time since the first measurement (min)")
-    fig.tight_layout()
+    _resistance_curve(ax_rv, outputs, train, truth, best)
     fig.savefig(path, dpi=100)
     plt.close(fig)
     return Path(path)
+
+
+def _band(ax, v_kmh: np.ndarray, r: np.ndarray, cov: np.ndarray, colour: str, label: str, ls: str = "-") -> None:
+    """r(v) = r0 + r1 v + r2 v^2 with its +-2 sigma band (v in km/h on the axis, N/kg)."""
+    v = v_kmh / 3.6
+    h = np.stack([np.ones_like(v), v, v * v], axis=1)
+    mean = h @ r
+    sigma = np.sqrt(np.maximum(np.einsum("ij,jk,ik->i", h, cov, h), 0.0))
+    ax.fill_between(v_kmh, mean - 2 * sigma, mean + 2 * sigma, color=colour, alpha=0.15, lw=0)
+    ax.plot(v_kmh, mean, color=colour, ls=ls, lw=1.3, label=label)
+
+
+def _resistance_curve(ax, outputs: Outputs, train: TrainSpec, truth: dict | None, best: dict | None) -> None:
+    """Panel 7: r(v) against speed (module docstring)."""
+    from .estimation.coast_regression import prior_covariance
+
+    est = outputs.est
+    v_top = max(float(np.max(outputs.meas["v"])) * 3.6 if outputs.meas else 0.0, 40.0)
+    v_kmh = np.linspace(0.0, 1.05 * v_top, 120)
+    prior = np.array(train.davis.as_tuple())
+    _band(ax, v_kmh, prior, prior_covariance(prior, 0.18, 0.10), "tab:blue", "train file (prior +-2 sigma)", "--")
+    if outputs.last_r_covariance is not None:
+        final = np.array([est[c][-1] for c in COEFFS], dtype=float)
+        _band(ax, v_kmh, final, outputs.last_r_covariance, "red", "on board, last message (+-2 sigma)")
+    if best:
+        _band(ax, v_kmh, np.array([best[c] for c in COEFFS]), np.asarray(best["covariance"]), "tab:purple",
+              f"whole run, {best.get('coasting_stretches', 0)} coasting stretches (+-2 sigma)", "-.")  # fmt: skip
+    if truth and all(c in truth for c in COEFFS):
+        v = v_kmh / 3.6
+        ax.plot(v_kmh, truth["r0"] + truth["r1"] * v + truth["r2"] * v * v, color="tab:green", ls=":", lw=1.6,
+                label="simulated truth")  # fmt: skip
+    ax.set_xlabel("speed (km/h)")
+    ax.set_ylabel("r(v) (N/kg)")
+    ax.set_xlim(0.0, v_kmh[-1])
+    ax.set_ylim(bottom=0.0)
+    ax.grid(alpha=0.25)
+    ax.legend(loc="upper left", fontsize=7)
 
 
 __all__ = ["REGIME_COLOURS", "write_report"]

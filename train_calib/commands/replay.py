@@ -252,7 +252,15 @@ def execute(args: argparse.Namespace, out: Path, track: str, train: str) -> dict
     elif not args.no_report:
         title = f"{bag_name(args.bag)}: {train_spec.name}, UKF estimate (layout of Cunillera et al. 2022, Fig. 3 and 6)"
         try:
-            write_report(out / "report.png", outputs, train_spec, truth=truth_values, title=title)
+            write_report(
+                out / "report.png",
+                outputs,
+                train_spec,
+                truth=truth_values,
+                title=title,
+                best=summary.get("best"),
+                configuration=summary.get("ukf_preset", ""),
+            )
         except Exception as exc:  # a plot must not cost the outputs (e.g. an interrupted replay with no estimate)
             log(f"report.png not drawn: {exc.__class__.__name__}: {exc}")
     log(
