@@ -485,6 +485,9 @@ def test_imm_per_sample_and_batch_agree_and_phase_follows_the_classifier():
         assert c.phase == phases[k]
     assert whole[40] == UNKNOWN and phases[40] == UNKNOWN and whole[41] == TRACTION  # departure
     assert c.imm_probabilities is not None and abs(sum(c.imm_probabilities) - 1.0) < 1e-12
+    # the speed noise learned from the second differences: 0.1 km/h noise and rounding, 0.029 m/s (measured 0.031)
+    assert 0.02 < c.imm_speed_noise < 0.045
+    assert RegimeClassifier(HMM).imm_speed_noise is None
     # without time the imm regime is the phase
     assert RegimeClassifier(cfg).classify(0.3, 0.3, 10.0) == TRACTION
 

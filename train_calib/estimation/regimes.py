@@ -191,6 +191,11 @@ class RegimeClassifier:
         return self._phase
 
     @property
+    def imm_speed_noise(self) -> float | None:
+        """imm: the speed sensor's noise std (m/s) in use: ``imm_speed_noise_std``, learned over the run."""
+        return self._imm.speed_noise if self._imm is not None else None
+
+    @property
     def imm_probabilities(self) -> tuple[float, ...] | None:
         """imm: probabilities of (TRACTION, CRUISING, COASTING, BRAKING) after the last sample it filtered."""
         return self._imm.probabilities() if self._imm is not None else None
@@ -404,6 +409,10 @@ class _Imm:
 
     def probabilities(self) -> tuple[float, ...] | None:
         return tuple(self._mu) if self._mu is not None else None
+
+    @property
+    def speed_noise(self) -> float:
+        return self._noise
 
     def step(self, t: float, z: float, w: float) -> int:
         """The regime at time t (s) given the measured speed z (m/s) and r + g = w (N/kg)."""

@@ -74,6 +74,9 @@ class RegimeNode(TrainCalibNode):
 
     def diagnostic_values(self) -> list[tuple[str, Any]]:
         out: list[tuple[str, Any]] = [("method", self.classifier.config.method)]
+        noise = self.classifier.imm_speed_noise
+        if noise is not None:  # imm: the speed noise learned from the second differences
+            out.append(("speed noise (imm), m/s", f"{noise:.3f}"))
         out += [(f"samples {name}", self._counts[i]) for i, name in enumerate(REGIME_NAMES)]
         out.append(("classifier restarts (parameter changes)", self._restarts))
         return out
