@@ -6,35 +6,20 @@ r(v) from a coast with known truth; the tune/report split and the true resistanc
 
 from __future__ import annotations
 
-import importlib.util
 import json
-import sys
 from dataclasses import dataclass
 from pathlib import Path
-from types import ModuleType
 
 import numpy as np
 import pytest
-from repo_paths import DATA
+from repo_paths import DATA, validation_module
 
 from train_calib.estimation import UKFConfig
 from train_calib.physics import KMH
 from train_calib.train import load_train
 
-BENCH = Path(__file__).resolve().parent.parent / "bench" / "validation"
-
-
-def _load(name: str) -> ModuleType:
-    spec = importlib.util.spec_from_file_location(f"validation_{name}", BENCH / f"{name}.py")
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module
-    spec.loader.exec_module(module)
-    return module
-
-
-family = _load("family")
-score = _load("score")
+family = validation_module("family")
+score = validation_module("score")
 
 TINY = family.Family(
     "tiny", str(DATA / "small_track.yaml"), str(DATA / "small_train.yaml"), "hold", "1hz_gnss2s", runs=2

@@ -12,31 +12,16 @@
 
 from __future__ import annotations
 
-import importlib.util
-import sys
-from pathlib import Path
-from types import ModuleType
-
 import pytest
+from repo_paths import REPO, validation_module
 
 from train_calib.estimation import UKFConfig
 
-REPO = Path(__file__).resolve().parents[2]
 EXTERNAL = REPO.parent / "shared" / "validation" / "runs"
-BENCH = REPO / "bench" / "validation"
 
 
-def _load(name: str) -> ModuleType:
-    spec = importlib.util.spec_from_file_location(f"validation_{name}", BENCH / f"{name}.py")
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module
-    spec.loader.exec_module(module)
-    return module
-
-
-score = _load("score")
-family = _load("family")
+score = validation_module("score")
+family = validation_module("family")
 
 
 @pytest.fixture(scope="module")
