@@ -83,8 +83,19 @@ TRAIN_KEYS = (
 
 
 def load_train(path: str | Path) -> TrainSpec:
-    """Read and validate a train file; a problem raises ConfigError('<file>: <key>: <problem>')."""
-    data = load_yaml_mapping(path, "train file")
+    """Read and validate a train file; a problem raises ConfigError('<file>: <key>: <problem>').
+
+    A ``.json`` file is read as a TTOBench train (``train_calib.ttobench``: kN to N/kg, assumptions printed once).
+    """
+    if Path(path).suffix.lower() == ".json":
+        from .ttobench import load_ttobench_train
+
+        return load_ttobench_train(path)
+    return train_from_mapping(load_yaml_mapping(path, "train file"), path)
+
+
+def train_from_mapping(data: dict, path: str | Path) -> TrainSpec:
+    """Validate a train file's mapping (``path`` names it in errors)."""
     c = Checker(path)
     c.known_keys(data, TRAIN_KEYS)
     davis_map = c.get(data, "davis")
