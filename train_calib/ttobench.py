@@ -169,12 +169,13 @@ def _efficiency(path: Path, data: dict, notes: list[str]) -> float:
 def load_ttobench_train(path: str | Path) -> TrainSpec:
     """The train of a TTOBench JSON with the default assumptions, printed once per file to stderr."""
     converted = convert_train(path)
+    spec = checked(converted)  # refused before anything is printed
     key = str(Path(path).resolve())
     if key not in _printed and converted.assumptions:
         _printed.add(key)
         print(f"{path}: TTOBench train: " + "; ".join(converted.assumptions)
               + " (override: train-calib convert-train)", file=sys.stderr)  # fmt: skip
-    return checked(converted)
+    return spec
 
 
 def train_mapping(spec: TrainSpec, digits: int = 17) -> dict[str, Any]:
