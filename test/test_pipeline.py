@@ -56,13 +56,15 @@ def test_chain_equals_the_whole_run_apis_of_the_estimator(track_train, measureme
         assert np.array_equal([getattr(e, name) for e in out.estimates], getattr(series, name)), name
     assert np.array_equal(np.array([e.covariance for e in out.estimates]), series.covariance)
     w = series.resistance + series.track_force  # the force the effort works against (regime_node passes it)
-    regimes = classify_regimes(
-        series.effort, series.acceleration, speed=series.v, effort_known=series.effort_known, opposing_force=w
-    )
+    regimes, phases = classify_regimes(
+        series.effort, series.acceleration, speed=series.v, effort_known=series.effort_known, opposing_force=w,
+        speed_measured=series.v_measured, time=series.stamp_ns * 1e-9, phase=True,
+    )  # fmt: skip
     assert np.array_equal([r.regime for r in out.regimes], regimes)
+    assert np.array_equal([r.phase for r in out.regimes], phases)
     assert {TRACTION, COASTING} <= set(regimes.tolist())
     closing = [f for f in out.features if f.run_complete]
-    whole = features_per_run(series, regimes)
+    whole = features_per_run(series, phases)  # the features follow the paper's phase
     assert len(closing) == len(whole) == len(set(series.run_id.tolist()))
     for got, want in zip(closing, whole):
         for name in ("run_time", "run_distance", "max_tractive_effort", "max_tractive_power", "cruise_speed",
@@ -111,8 +113,8 @@ def test_regimes_get_effort_known_and_the_opposing_force(synthetic):
     effort, accel, v = ([getattr(x, n) for x in e] for n in ("effort", "acceleration", "v"))
     known = [x.effort_known for x in e]
     w = [x.resistance + x.track_force for x in e]
-    with_keywords = classify_regimes(effort, accel, speed=v, effort_known=known, opposing_force=w)
-    assert [r.regime for r in out.regimes] == with_keywords.tolist()
+    with_keywords = classify_regimes(effort, accel, speed=v, effort_known=known, opposing_force=w)  # the phase
+    assert [r.phase for r in out.regimes] == with_keywords.tolist()
     plain = classify_regimes(effort, accel, speed=v)
     assert sum(known) > 50 and np.count_nonzero(plain != with_keywords) > 10  # measured: 87 known, 27 differ
 
@@ -129,7 +131,7 @@ def test_window_calibration_after_the_regime_equals_calibrate_series(synthetic, 
     out = run_bag(bag, track, train, window=config)
     assert len(out.estimates) == len(out.measurements)  # no measurement rejected: one regime each
     series = MeasurementSeries.from_measurements(out.measurements)
-    expected = calibrate_series(series, train, config, regimes=[r.regime for r in out.regimes])
+    expected = calibrate_series(series, train, config, regimes=[r.phase for r in out.regimes])  # the node's input
     assert len(out.windows) == len(expected) > 300
     for got, want in zip(out.windows, expected):  # every field exactly, NaN equal to NaN
         for f in dataclasses.fields(got):

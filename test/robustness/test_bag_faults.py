@@ -169,7 +169,7 @@ def test_a_truncated_output_recording_is_read_back_up_to_the_damage(setup, tmp_p
     rng = np.random.default_rng(0)
     for k in range(20000):
         msg = regime(header=bagio.make_header(k), run_id=k, regime=int(rng.integers(5)), s=float(k), v=1.0,
-                     effort=0.0, acceleration=0.0, v_measured=1.0, effort_source=0)  # fmt: skip
+                     effort=0.0, acceleration=0.0, v_measured=1.0, effort_source=0, phase=0)  # fmt: skip
         writer.write("/train_calib/regime", msg, k)
     writer._stream.flush()
     data = (tmp_path / "rec" / "output.mcap").read_bytes()  # the writer is not closed: as a killed process left it
