@@ -209,3 +209,28 @@ def test_power_marks_the_coast_and_traction_power_vetoes_it(train):
     assert speeds_only.stretches[0].t_start > fit.stretches[0].t_start + 5.0
     arr.power = np.full(arr.t.size, POWER_DRIVE, dtype=np.int8)
     assert fit_coasts(arr, train).stretches == []
+
+
+def test_a_clock_reset_starts_a_new_time_base_and_keeps_what_was_learnt(train):
+    """A recording whose second run's stamps lie before the first's (a clock reset): the whole-run fit takes each
+    part on its own time base and finds the coast of both; the causal form learns in both too (found by the bag
+    fuzz test: an IndexError in the summary's fit)."""
+    truth, series = run_with_truth(train, (0.8, 0.8, 0.8), 1.0)
+    arr = RunArrays.from_series(series)
+    both = RunArrays(
+        np.concatenate([arr.t, arr.t - 5000.0]),
+        np.concatenate([arr.v, arr.v]),
+        np.concatenate([arr.g, arr.g]),
+        np.concatenate([arr.tunnel, arr.tunnel]),
+        np.concatenate([arr.run, arr.run + 1]),
+    )
+    one = fit_coasts(arr, train)
+    fit = fit_coasts(both, train)
+    assert len(fit.stretches) == 2 * len(one.stretches) >= 2
+    assert abs(rel_error(fit.r, truth)) < 0.05
+    online = CoastRegression(train, CoastSettings())
+    for args in zip(both.t, both.v, both.g, both.tunnel, both.run):
+        online.push(*args)
+        if args[0] < arr.t[-1] and args[4] == 0:
+            first = len(online.stretches)
+    assert first >= 1 and len(online.stretches) > first

@@ -422,6 +422,21 @@ def bounds_of(
     return sorted(bounds)
 
 
+def monotonic_parts(arr: RunArrays) -> list[RunArrays]:
+    """The arrays cut where the time does not increase (a clock reset, a repeated stamp): parts in which t rises."""
+    cuts = np.flatnonzero(np.diff(arr.t) <= 0.0) + 1
+    if cuts.size == 0:
+        return [arr]
+    edges = [0, *cuts.tolist(), arr.t.size]
+    parts = []
+    for a, b in itertools.pairwise(edges):
+        if b - a >= 3:
+            sl = slice(a, b)
+            power = arr.power[sl] if arr.power is not None else None
+            parts.append(RunArrays(arr.t[sl], arr.v[sl], arr.g[sl], arr.tunnel[sl], arr.run[sl], power))
+    return parts
+
+
 def fit_coasts(
     arr: RunArrays, train: TrainSpec, settings: CoastSettings | None = None, prior: Davis | None = None
 ) -> CoastFit:
@@ -431,12 +446,15 @@ def fit_coasts(
     P0 = prior_covariance(r_prior, cfg.prior_scale_std, cfg.prior_coefficient_std)
     if arr.t.size < 3:
         return CoastFit(r_prior, P0)
-    bounds, sv, window = detect(arr, cfg, r_prior)
+    sv = speed_noise(arr.v)
+    window = math.nan
     stretches: list[Stretch] = []
-    for k0, k1, _, _ in bounds:
-        st = stretch_equations(arr, k0, k1, cfg, r_prior, sv, train.tunnel_factor)
-        assign_group(st, stretches[-1] if stretches else None, 2.0 * window)
-        stretches.append(st)
+    for part in monotonic_parts(arr):  # a clock reset starts the time base anew: each part on its own
+        bounds, _, window = detect(part, cfg, r_prior, sv)
+        for k0, k1, _, _ in bounds:
+            st = stretch_equations(part, k0, k1, cfg, r_prior, sv, train.tunnel_factor)
+            assign_group(st, stretches[-1] if stretches else None, 2.0 * window)
+            stretches.append(st)
     r, cov = posterior(r_prior, P0, stretches)
     return CoastFit(nonnegative(r, cov), cov, stretches, sv, window)
 
@@ -506,7 +524,10 @@ class CoastRegression:
         if not (math.isfinite(t) and math.isfinite(v) and math.isfinite(g)):
             return False
         if self._t and t <= self._t[-1]:
-            return False
+            if run_id == self._run[-1]:
+                return False  # an older or repeated stamp within the run: not a measurement to use
+            self._keep_from(len(self._t))  # a new run on a new time base (clock reset): what was learnt stays
+            self._used_until = self._last_detect = -math.inf
         if self._v:
             dv = abs(v - self._v[-1])
             if dv > 1e-4:
