@@ -141,47 +141,17 @@ class DaskCluster:
         self.tls = tls
         opts = ["--tls-ca-file", tls[0], "--tls-cert", tls[1], "--tls-key", tls[2]] if tls else []
         env = dict(os.environ)
-        self.procs = [
-            subprocess.Popen(
-                [
-                    str(DASK),
-                    "scheduler",
-                    "--host",
-                    "127.0.0.1",
-                    "--port",
-                    self.address.rsplit(":", 1)[1],
-                    "--no-dashboard",
-                    "--no-show",
-                    *opts,
-                ],
-                stdout=subprocess.DEVNULL,
-                stderr=open(tmp / "scheduler.log", "w"),
-                env=env,
-            )
-        ]  # noqa: SIM115
+        host = ["--host", "127.0.0.1", "--no-dashboard"]
+        port = self.address.rsplit(":", 1)[1]
+        commands = [("scheduler", [str(DASK), "scheduler", *host, "--port", port, "--no-show", *opts])]
         for k in range(workers):
-            self.procs.append(
-                subprocess.Popen(
-                    [
-                        str(DASK),
-                        "worker",
-                        self.address,
-                        "--host",
-                        "127.0.0.1",
-                        "--nthreads",
-                        "1",
-                        "--nworkers",
-                        "1",
-                        "--no-dashboard",
-                        "--local-directory",
-                        str(tmp / f"w{k}"),
-                        *opts,
-                    ],
-                    stdout=subprocess.DEVNULL,
-                    stderr=open(tmp / f"worker{k}.log", "w"),
-                    env=env,
-                )
-            )  # noqa: SIM115
+            worker = [str(DASK), "worker", self.address, *host, "--nthreads", "1", "--nworkers", "1"]
+            commands.append((f"worker{k}", [*worker, "--local-directory", str(tmp / f"w{k}"), *opts]))
+        self.logs = [(tmp / f"{name}.log").open("w") for name, _ in commands]  # closed in close()
+        self.procs = [
+            subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=log, env=env)
+            for (_, cmd), log in zip(commands, self.logs)
+        ]
         with self.client() as c:
             c.wait_for_workers(workers, timeout=60)
 
@@ -209,6 +179,8 @@ class DaskCluster:
                 except subprocess.TimeoutExpired:
                     p.kill()
                     p.wait()
+        for log in self.logs:
+            log.close()
 
 
 @pytest.fixture(scope="module")

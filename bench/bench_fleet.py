@@ -1,0 +1,189 @@
+"""Benchmark of train-calib fleet: runs per second per core, 1 vs 2 workers, local (Dask) vs no Dask, peak memory.
+
+    .venv/bin/python bench/bench_fleet.py [--runs 40] [--memory-runs 10000] [--out build/bench_fleet]
+
+Bags: a simulated fleet on the 32 km intercity corridor (20-minute runs), at 10 s and at 1 Hz (GNSS and speed),
+written once to --out (2 units x 2 runs each; a manifest lists them again and again under other units and dates).
+
+- Per core: ``process_run`` (bag to row, what a worker does) in this process, serially, after one warm-up run:
+  runs/s = 1 / mean time. The bag decoding (``pipeline.bag_messages``) is timed alone to split the time.
+- Scaling: ``run_fleet`` on a LocalCluster of 1 and of 2 worker processes (started before the clock runs), --runs
+  runs at 1 Hz: the ratio of the rates.
+- Local vs Dask: the serial loop (no Dask) against 1 Dask worker on the same runs: the overhead per run, and the
+  rows compared (equal but for the timing column).
+- Memory: --memory-runs runs at 10 s through ``train-calib fleet --workers 2 --quiet`` as a subprocess; peak RSS
+  of the command's process and of its workers (getrusage of the children), against a run of a tenth as many.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pandas as pd
+
+from train_calib.fleet.manifest import read_manifest
+from train_calib.fleet.row import TIMING_COLUMNS, process_run
+from train_calib.fleet.runner import Cluster, run_fleet
+from train_calib.fleet.simulate import FleetSpec, simulate_fleet
+from train_calib.pipeline import bag_messages
+
+REPO = Path(__file__).resolve().parent.parent
+RUNS_PER_YEAR = 900_000  # a 170-unit intercity fleet (issue 20)
+
+
+def bags(out: Path, period: float) -> Path:
+    folder = out / f"bags_{period:g}s"
+    if not (folder / "manifest.csv").exists():
+        simulate_fleet(folder, FleetSpec(units=2, faulty=0, runs_per_unit=2, seed=7, period_s=period))
+    return folder / "manifest.csv"
+
+
+def manifest(src: Path, n: int, path: Path) -> Path:
+    """n lines cycling over the bags of ``src`` under other units and dates."""
+    base = list(csv.DictReader(src.open()))
+    with path.open("w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["bag", "track", "train", "unit", "date"])
+        for k in range(n):
+            row = base[k % len(base)]
+            bag = str((src.parent / row["bag"]).resolve())
+            w.writerow([bag, row["track"], row["train"], f"u{k % 170:03d}", f"2025-{1 + k % 12:02d}-{1 + k % 28:02d}"])
+    return path
+
+
+def per_core(src: Path, repeat: int) -> dict[str, float]:
+    rows = read_manifest(src)
+    jobs = [r.columns() | {"bag_path": r.bag_path, "track_path": r.track_path, "train_path": r.train_path}
+            for r in rows]  # fmt: skip
+    process_run(jobs[0])  # warm-up: imports, track and train caches
+    times: dict[int, list[float]] = {k: [] for k in range(len(jobs))}
+    decode: dict[int, list[float]] = {k: [] for k in range(len(jobs))}
+    for _ in range(repeat):
+        for k, job in enumerate(jobs):
+            t = time.perf_counter()
+            row = process_run(job)
+            times[k].append(time.perf_counter() - t)
+            assert row["status"] == "ok", row["error"]
+            t = time.perf_counter()
+            n = sum(1 for _ in bag_messages(job["bag_path"]))
+            decode[k].append(time.perf_counter() - t)
+    # the best of the repeats per bag (the machine is shared), then the mean over the bags
+    best = sum(min(v) for v in times.values()) / len(jobs)
+    best_decode = sum(min(v) for v in decode.values()) / len(jobs)
+    mean_all = sum(sum(v) for v in times.values()) / (len(jobs) * repeat)
+    return {"seconds_per_run": best, "runs_per_s_per_core": 1.0 / best, "mean_seconds_per_run": mean_all,
+            "decode_s": best_decode, "decode_share": best_decode / best, "messages": n,
+            "samples": row["samples"]}  # fmt: skip
+
+
+def fleet_rate(rows: list, workers: int, out: Path) -> tuple[float, Path]:
+    """Runs/s of run_fleet on a LocalCluster of ``workers`` processes (cluster start not counted)."""
+    from distributed import Client
+
+    from train_calib.fleet.runner import connect
+
+    client, local = connect(Cluster(workers=workers))
+    try:
+        client.run(lambda: __import__("train_calib.pipeline"))  # workers import before the clock
+        run_fleet(rows[: 2 * workers], out / f"warm{workers}", Cluster(workers=workers), client=client)
+        t = time.perf_counter()
+        run_fleet(rows, out / f"w{workers}", Cluster(workers=workers), client=client)
+        dt = time.perf_counter() - t
+    finally:
+        client.close()
+        local.close()
+    assert isinstance(client, Client)
+    return len(rows) / dt, out / f"w{workers}" / "runs.parquet"
+
+
+def serial(rows: list, out: Path) -> tuple[float, Path]:
+    """The same rows without Dask, in this process."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    from train_calib.fleet.row import RUNS_SCHEMA
+
+    t = time.perf_counter()
+    result = [process_run(r.columns() | {"date_s": r.date_s, "bag_path": r.bag_path, "track_path": r.track_path,
+                                         "train_path": r.train_path}) for r in rows]  # fmt: skip
+    dt = time.perf_counter() - t
+    out.mkdir(parents=True, exist_ok=True)
+    pq.write_table(pa.Table.from_pylist(result, schema=RUNS_SCHEMA), out / "serial.parquet")
+    return len(rows) / dt, out / "serial.parquet"
+
+
+def memory(src: Path, n: int, out: Path) -> dict[str, float]:
+    m = manifest(src, n, out / f"memory_{n}.csv")
+    code = (
+        "import resource, sys, time; from train_calib.cli import main; t = time.perf_counter(); "
+        f"rc = main(['fleet', {str(m)!r}, '--out', {str(out / f'mem{n}')!r}, '--workers', '2', '--quiet']); "
+        "print('WALL', time.perf_counter() - t); "
+        "print('RSS', resource.getrusage(resource.RUSAGE_SELF).ru_maxrss, "
+        "resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss); sys.exit(rc)"
+    )
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    fields = {
+        line.split()[0]: line.split()[1:] for line in res.stdout.splitlines() if line.split()[0] in ("WALL", "RSS")
+    }
+    return {"runs": n, "wall_s": float(fields["WALL"][0]), "client_peak_mb": int(fields["RSS"][0]) / 1024,
+            "worker_peak_mb": int(fields["RSS"][1]) / 1024}  # fmt: skip
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--out", type=Path, default=REPO / "build" / "bench_fleet")
+    ap.add_argument("--runs", type=int, default=40, help="runs of the scaling and overhead measurements")
+    ap.add_argument("--repeat", type=int, default=3, help="passes over the bags for the per-core rate")
+    ap.add_argument("--memory-runs", type=int, default=10000, help="0 = skip the memory measurement")
+    args = ap.parse_args()
+    args.out.mkdir(parents=True, exist_ok=True)
+    report: dict[str, object] = {"cores": os.cpu_count(), "load_average_at_start": os.getloadavg()}
+    print(f"load average at start: {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
+    src = {p: bags(args.out, p) for p in (10.0, 1.0)}
+    for p, m in src.items():
+        report[f"per_core_{p:g}s"] = r = per_core(m, args.repeat)
+        print(f"per core, {p:g} s: {r['runs_per_s_per_core']:.2f} runs/s ({1000 * r['seconds_per_run']:.0f} ms/run, "
+              f"decoding {100 * r['decode_share']:.0f} %, {r['samples']} samples)")  # fmt: skip
+    rows = read_manifest(manifest(src[1.0], args.runs, args.out / "scaling.csv"))
+    rate_serial, serial_path = serial(rows, args.out / "serial")
+    rate1, path1 = fleet_rate(rows, 1, args.out)
+    rate2, path2 = fleet_rate(rows, 2, args.out)
+    a = pd.read_parquet(serial_path).drop(columns=list(TIMING_COLUMNS))
+    same = all(a.equals(pd.read_parquet(p).drop(columns=list(TIMING_COLUMNS))) for p in (path1, path2))
+    report["scaling_1hz"] = {"runs": len(rows), "serial_runs_per_s": rate_serial, "dask1_runs_per_s": rate1,
+                             "dask2_runs_per_s": rate2, "speedup_2_vs_1": rate2 / rate1,
+                             "dask_overhead_ms_per_run": 1000 * (1 / rate1 - 1 / rate_serial),
+                             "rows_equal": same}  # fmt: skip
+    print(f"1 Hz, {len(rows)} runs: serial {rate_serial:.2f} runs/s, dask 1 worker {rate1:.2f}, 2 workers {rate2:.2f} "
+          f"(x{rate2 / rate1:.2f}); dask overhead {1000 * (1 / rate1 - 1 / rate_serial):+.1f} ms/run; "
+          f"rows equal: {same}")  # fmt: skip
+    r1 = report["per_core_1s"]["runs_per_s_per_core"]  # type: ignore[index]
+    eff = (rate2 / rate1) / 2
+    cores = RUNS_PER_YEAR / (r1 * eff * 3600.0)
+    report["year_in_an_hour_cores"] = cores
+    print(
+        f"a year of a 170-unit fleet ({RUNS_PER_YEAR} runs at 1 Hz) in an hour: {cores:.0f} cores "
+        f"(at {r1:.2f} runs/s per core and {100 * eff:.0f} % parallel efficiency)"
+    )
+    if args.memory_runs:
+        for n in (args.memory_runs // 10, args.memory_runs):
+            report[f"memory_{n}"] = m = memory(src[10.0], n, args.out)
+            print(
+                f"memory, {n} runs at 10 s: {m['wall_s']:.0f} s, peak RSS command {m['client_peak_mb']:.0f} MB, "
+                f"largest worker {m['worker_peak_mb']:.0f} MB"
+            )
+    report["load_average_at_end"] = os.getloadavg()
+    print(f"load average at end: {os.getloadavg()[0]:.1f}")
+    (args.out / "bench_fleet.json").write_text(json.dumps(report, indent=1) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
