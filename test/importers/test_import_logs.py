@@ -234,3 +234,28 @@ def test_imported_bags_replay_like_the_original(tmp_path, streams, capsys):
         final = run_bag(tmp_path / name, track, train).final
         r = final.r0 + final.r1 * v + final.r2 * v * v
         assert abs(r / r_ref - 1) < (1e-6 if name == "csv" else 0.01), (name, r, r_ref)
+
+
+def test_power_columns_and_mixed_formats(tmp_path, streams, capsys):
+    """Positions from a GPX logger and speed plus power from the train's CSV recorder: one bag."""
+    write_gpx(streams, tmp_path / "pos.gpx")
+    rows = ["time,speed_ms,power_consumed_w,power_regenerated_w"]
+    rows += [f"{t * 1e-9:.6f},{v:.4f},{1e5 * v:.1f},0" for t, v in zip(streams.speed_t_ns, streams.speed_ms)]
+    (tmp_path / "rec.csv").write_text("\n".join(rows) + "\n")
+    code, out, err = run_import(
+        capsys, str(tmp_path / "pos.gpx"), str(tmp_path / "rec.csv"), "--out", str(tmp_path / "b")
+    )
+    assert code == 0, err
+    back = bag_streams(tmp_path / "b")
+    assert back.power_t_ns.size == streams.speed_t_ns.size
+    np.testing.assert_allclose(back.consumed_w, 1e5 * streams.speed_ms, atol=0.06)
+    assert back.speed_t_ns.size == streams.gnss_t_ns.size + streams.speed_t_ns.size  # GPX speeds and CSV speeds
+    assert f"{back.power_t_ns.size} power samples" in out
+
+
+def test_speed_without_positions_is_one_line(tmp_path, streams, capsys):
+    rows = ["time,speed_kmh"] + [f"{t * 1e-9:.3f},{v * 3.6:.2f}" for t, v in zip(streams.speed_t_ns, streams.speed_ms)]
+    (tmp_path / "s.csv").write_text("\n".join(rows) + "\n")
+    code, _, err = run_import(capsys, str(tmp_path / "s.csv"), "--out", str(tmp_path / "b"))
+    assert code == 2 and "no usable position" in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "b").exists()
