@@ -555,8 +555,13 @@ def _format_window(window: dict[str, Any] | None) -> list[str]:
         f"{window['well_posed']} of {window['messages']} windows well posed"
     )
     w = window.get("last_well_posed")
+    pooled = _format_pooled(window.get("pooled"))
     if not w:
-        return [head + " (none: nothing published; the speed does not resolve the resistance, docs/window.md)"]
+        return [
+            head + f" (every one of the {window['messages']} published windows has r0, r1, r2 NaN: within a window "
+            "the speed spans too little to separate them, docs/window.md)",
+            *pooled,
+        ]
     lines = [head + f"; the last ({w['regime']}, {w['sample_count']} steps, {window['gof']} {w['gof_value_n']:.3g} N):"]
     lines.append(
         f"    A {w['a_n']:.4g} N, B {w['b_n_per_m_s']:.4g} N/(m/s), C {w['c_n_per_m2_s2']:.4g} N/(m/s)^2 = "
@@ -578,7 +583,19 @@ def _format_window(window: dict[str, Any] | None) -> list[str]:
             "    per regime (well/ill posed): "
             + ", ".join(f"{name} {st['windows']}/{st['ill_posed']}" for name, st in regimes.items())
         )
-    return lines
+    return lines + pooled
+
+
+def _format_pooled(pooled: dict[str, Any] | None) -> list[str]:
+    """The windows pooled into one r(v) (each window's resistance at its mean speed), at the reference speeds."""
+    if not pooled:
+        return []
+    r, cov = np.array([pooled[c] for c in COEFFS]), np.asarray(pooled["covariance"], dtype=float)
+    parts = []
+    for kmh in REFERENCE_SPEEDS_KMH:
+        h = np.array([1.0, kmh / 3.6, (kmh / 3.6) ** 2])
+        parts.append(f"{kmh} km/h {h @ r:.4f} +- {math.sqrt(max(float(h @ cov @ h), 0.0)):.4f}")
+    return [f"    pooled over {pooled.get('windows', 0)} windows, r(v) N/kg: " + ", ".join(parts)]
 
 
 def _pct(x: float | None) -> str:
