@@ -127,8 +127,9 @@ def test_the_readme_s_das_gets_every_message_of_a_live_replay_from_the_first_and
     subscribed, it receives every regime and resistance message, and Ctrl-C ends it without a traceback."""
     script = tmp_path / "das.py"
     script.write_text(_readme_das())
+    printed = tmp_path / "das.out"
     das = subprocess.Popen(
-        [sys.executable, "-u", str(script)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+        [sys.executable, "-u", str(script)], stdout=printed.open("w"), stderr=subprocess.PIPE, text=True
     )
     try:
         readme = (REPO / "README.md").read_text()
@@ -145,11 +146,13 @@ def test_the_readme_s_das_gets_every_message_of_a_live_replay_from_the_first_and
             cwd=REPO,
         )
         assert replay.returncode == 0, replay.stderr
-        time.sleep(1.0)  # the last messages on their way
+        deadline = time.monotonic() + 30.0  # the last messages on their way (seconds on a loaded machine)
+        while time.monotonic() < deadline and printed.read_text().count("regime ") < 131:
+            time.sleep(0.2)
     finally:
         das.send_signal(signal.SIGINT)
-        out, err = das.communicate(timeout=30)
+        _, err = das.communicate(timeout=30)
     assert das.returncode == 0 and "Traceback" not in err, err
-    lines = out.splitlines()
+    lines = printed.read_text().splitlines()
     assert sum(ln.startswith("regime ") for ln in lines) == 131
     assert sum(ln.startswith("r(v) = ") for ln in lines) == 131
