@@ -10,7 +10,9 @@ from __future__ import annotations
 import csv
 import io
 import math
+from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 from .records import ImportFormatError, RowLog, Streams
 from .timefmt import TimeError, parse_time_ns
@@ -74,12 +76,13 @@ def read_csv(
     start_ns: int = 0,
 ) -> Streams:
     """Read a CSV log; bad rows go to ``log`` with their line, a missing column raises ImportFormatError."""
+    text = text.replace("\r\n", "\n").replace("\r", "\n").replace("\x00", "")
     delimiter = _dialect(text)
     reader = csv.reader(io.StringIO(text), delimiter=delimiter)
     try:
         header = [h.strip() for h in next(reader)]
-    except StopIteration:
-        raise ImportFormatError(f"{path}: empty CSV file (no header row)") from None
+    except (StopIteration, csv.Error):
+        raise ImportFormatError(f"{path}: no readable CSV header row") from None
     mapping = {name: name for name in FIELDS}
     mapping.update(columns or {})
     index = {name: header.index(col) for name, col in mapping.items() if col in header}
@@ -98,7 +101,7 @@ def read_csv(
     speed: list[tuple[int, float]] = []
     power: list[tuple[int, float, float]] = []
     width = len(header)
-    for row in reader:
+    for row in _rows(reader, path, log):
         line = reader.line_num
         if not row or not any(c.strip() for c in row):
             continue
@@ -147,6 +150,18 @@ def read_csv(
         else:
             log.bad(path, line, "no position, speed or power in this row")
     return Streams.from_lists(gnss, speed, power)
+
+
+def _rows(reader: Any, path: Path, log: RowLog) -> Iterator[list[str]]:
+    """The reader's rows; a row the csv module cannot split (an unterminated quote) is a bad row."""
+    while True:
+        try:
+            yield next(reader)
+        except StopIteration:
+            return
+        except csv.Error as exc:
+            log.rows += 1
+            log.bad(path, reader.line_num, f"unreadable row: {exc}")
 
 
 def _speed_column(

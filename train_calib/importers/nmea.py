@@ -69,6 +69,8 @@ def _date_ns(value: str) -> int:
         day = datetime(2000 + int(value[4:6]), int(value[2:4]), int(value[0:2]), tzinfo=timezone.utc)
     except (ValueError, IndexError):
         raise SentenceError(f"date {value!r} is not ddmmyy") from None
+    if day.year >= 2038:
+        raise SentenceError(f"date {value!r} is after 2037 (a ROS stamp holds int32 seconds)")
     return int(day.timestamp()) * 1_000_000_000
 
 

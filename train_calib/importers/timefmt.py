@@ -6,6 +6,7 @@ from datetime import datetime, timezone
 from decimal import Decimal, InvalidOperation
 
 TIME_UNITS = {"s": 1_000_000_000, "ms": 1_000_000}
+MAX_NS = 2**31 * 1_000_000_000  # a ROS stamp holds int32 seconds: up to 2038-01-19
 RELATIVE_LIMIT_S = 1.0e8  # numeric times below this (about 3 years) are seconds since the log's start
 
 
@@ -22,6 +23,8 @@ def parse_iso_ns(text: str) -> int:
     if stamp.tzinfo is None:
         raise TimeError(f"ISO 8601 time {text!r} has no zone (add Z or +hh:mm)")
     stamp = stamp.astimezone(timezone.utc)
+    if not 0 <= stamp.timestamp() < MAX_NS / 1e9:
+        raise TimeError(f"time {text!r} is out of range (1970 to 2038)")
     whole = int(stamp.replace(microsecond=0).timestamp())
     return whole * 1_000_000_000 + stamp.microsecond * 1000
 
@@ -36,4 +39,7 @@ def parse_time_ns(text: str, unit: str, start_ns: int) -> int:
     if not value.is_finite():
         raise TimeError(f"time {cell!r} is not finite")
     ns = int((value * TIME_UNITS[unit]).to_integral_value())
-    return ns + start_ns if abs(ns) < RELATIVE_LIMIT_S * 1e9 else ns
+    ns = ns + start_ns if abs(ns) < RELATIVE_LIMIT_S * 1e9 else ns
+    if not 0 <= ns < MAX_NS:
+        raise TimeError(f"time {cell!r} is out of range (1970 to 2038)")
+    return ns
