@@ -5,11 +5,13 @@ from __future__ import annotations
 
 import importlib.util
 from importlib import metadata
+from pathlib import Path
 
 import pytest
 import yaml
 from repo_paths import REPO
 
+from train_calib import paths
 from train_calib.estimation import FeatureConfig, RegimeConfig, UKFConfig
 from train_calib.ingest import IngestConfig
 from train_calib.nodes.config import GRAPH_NODES, NODE_PARAMS, default_parameters, node_specs, params_yaml
@@ -70,15 +72,34 @@ def _launch_module():
     return module
 
 
+def _launch_config_dir():
+    """Where the launch file should take config/ from: the package's installed share directory when the ament index
+    has one (a colcon workspace: `colcon test` runs the source tree's tests against the install), else the source
+    tree's, which is what train_calib.paths finds in a checkout (make test)."""
+    try:
+        from ament_index_python.packages import get_package_share_directory
+
+        installed = Path(get_package_share_directory("train_calib")) / "config"
+        if (installed / "train_calib.yaml").is_file():
+            return installed
+    except Exception:  # no ament index, or train_calib not in it
+        pass
+    return paths.config_file("train_calib.yaml").parent
+
+
 def test_launch_file_imports_and_describes_the_graph():
     launch = _launch_module()
+    config_dir = _launch_config_dir()
+    if not _installed_in_ament_index():
+        assert config_dir == REPO / "config"  # make test: the checkout's files, edits seen at once
+    assert (config_dir / "train_calib.yaml").read_text() == CONFIG.read_text()
     scripts = {ep.name for ep in metadata.distribution("train_calib").entry_points if ep.group == "console_scripts"}
     nodes = launch.describe(track="tunnel_line_37km", train="virm4", use_sim_time=True)
     assert [n["name"] for n in nodes] == list(GRAPH_NODES)
     for n in nodes:
         assert n["package"] == "train_calib" and n["executable"] in scripts and n["name"] in NODE_PARAMS
         params_file, overrides = n["parameters"]
-        assert params_file == str(CONFIG)
+        assert params_file == str(config_dir / "train_calib.yaml")
         declared = {spec.name for _, spec in node_specs(n["name"])}
         assert set(overrides) - {"use_sim_time"} <= declared
         assert overrides["use_sim_time"] is True
@@ -96,14 +117,24 @@ def test_launch_file_imports_and_describes_the_graph():
     assert len(launch.describe(**(defaults | {"traction_power": "true", "window": "false"}))) == len(GRAPH_NODES)
     # ukf_preset: converging adds config/ukf_converging.yaml to ukf_node after the params file
     ukf = next(n for n in launch.describe(ukf_preset="converging") if n["name"] == "ukf_node")
-    assert ukf["parameters"][:2] == [str(CONFIG), str(REPO / "config" / "ukf_converging.yaml")]
+    assert ukf["parameters"][:2] == [str(config_dir / "train_calib.yaml"), str(config_dir / "ukf_converging.yaml")]
     paper = next(n for n in launch.describe(ukf_preset="paper") if n["name"] == "ukf_node")
-    assert paper["parameters"][:2] == [str(CONFIG), str(REPO / "config" / "ukf_paper.yaml")]
+    assert paper["parameters"][:2] == [str(config_dir / "train_calib.yaml"), str(config_dir / "ukf_paper.yaml")]
     learning = next(n for n in launch.describe(ukf_preset="learning") if n["name"] == "ukf_node")
     assert str(learning["parameters"][1]).find("ukf_") < 0  # the defaults: the params file alone
     for bad in ({"window": "maybe"}, {"ukf_preset": "fast"}, {"use_sim_time": "ja"}):
         with pytest.raises(ValueError, match=f"launch argument {next(iter(bad))}: "):
             launch.describe(**bad)
+
+
+def _installed_in_ament_index() -> bool:
+    try:
+        from ament_index_python.packages import get_package_share_directory
+
+        get_package_share_directory("train_calib")
+    except Exception:  # no ament index, or train_calib not in it
+        return False
+    return True
 
 
 def test_launch_description_builds_with_launch_installed():
