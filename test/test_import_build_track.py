@@ -98,7 +98,7 @@ def test_profile_errors_are_one_line(tmp_path, capsys):
         (["--profile", str(tmp_path / "g.csv")], "g.csv: line 3: expected two numbers"),
         (["--profile", str(tmp_path / "l.csv")], "gradients: the profile has no gradients"),
         (["--profile", str(REPO.parent / "shared/validation/ttobench/tracks/CH_Stadelhofen_Altstetten.json")],
-         "the profile's stops span 5790 m, the runs' 32"),
+         "the profile's stops span 5790 m, the geometry's 32"),
     ]  # fmt: skip
     for k, (extra, message) in enumerate(cases):
         code = cli.main(["build-track", "--gnss", bag, *extra, "--name", "x", "--out", str(tmp_path / f"{k}.yaml")])
@@ -111,7 +111,28 @@ def test_alignment_maps_stops_piecewise():
 
     a = align([0.0, 1000.0, 3000.0], np.array([10.0, 1020.0, 3010.0]), "p")
     assert a(np.array([-5.0, 500.0, 2000.0, 3100.0])) == pytest.approx([5.0, 515.0, 2015.0, 3110.0])
-    with pytest.raises(ConfigError, match="span 3000 m, the runs' 3300 m"):
+    with pytest.raises(ConfigError, match="span 3000 m, the geometry's 3300 m"):
         align([0.0, 3000.0], np.array([0.0, 3300.0]), "p")
     table = mapped_table([(0.0, 1.0), (100.0, 2.0), (200.0, 2.0), (300.0, 3.0)], lambda p: p + 50.0, 320.0)
     assert table == [(0.0, 1.0), (150.0, 2.0)]
+
+
+def test_track_option_takes_a_geometry_plus_a_ttobench_profile(tmp_path, capsys):
+    """``--track GEOMETRY.yaml+PROFILE.json``: the gradients and limits of the JSON on the YAML's geometry and
+    stations, equal to what build-track --profile JSON writes; a profile of another line is refused in one line."""
+    validation = REPO.parent / "shared" / "validation"
+    if not validation.is_dir():
+        pytest.skip("../shared/validation not present")
+    profile = validation / "ttobench" / "tracks" / "CH_Stadelhofen_Altstetten.json"
+    bag = validation / "runs" / "stadelhofen_kiss_eco_1hz_00"
+    out = tmp_path / "built.yaml"
+    argv = ["build-track", "--gnss", str(bag), "--profile", str(profile), "--name", "s", "--out", str(out)]
+    assert cli.main(argv) == 0
+    combined = load_track(f"{out}+{profile}")
+    built = load_track(out)
+    np.testing.assert_allclose(combined.gradient.breaks, built.gradient.breaks, atol=0.01)
+    np.testing.assert_array_equal(combined.gradient.values, built.gradient.values)
+    np.testing.assert_array_equal(combined.speed_limit.values, built.speed_limit.values)
+    other = validation / "ttobench" / "tracks" / "SE_Vasteras_Kolback.json"
+    with pytest.raises(ConfigError, match="the profile's stops span 19305 m"):
+        load_track(f"{out}+{other}")

@@ -153,8 +153,21 @@ TRACK_KEYS = (
 
 
 def load_track(path: str | Path) -> Track:
-    """Read and validate a track file; a problem raises ConfigError('<file>: <key>: <problem>')."""
-    data = load_yaml_mapping(path, "track file")
+    """Read and validate a track file; a problem raises ConfigError('<file>: <key>: <problem>').
+
+    ``GEOMETRY.yaml+PROFILE.json``: a track file's geometry and stations with the gradients, limits and curves of a
+    TTOBench track JSON mapped onto them through the stops (``train_calib.trackbuild.combine``).
+    """
+    if str(path).lower().endswith(".json") and "+" in str(path):
+        from .trackbuild.combine import combined_track_mapping
+
+        data, source = combined_track_mapping(str(path))
+        return track_from_mapping(data, source)
+    return track_from_mapping(load_yaml_mapping(path, "track file"), path)
+
+
+def track_from_mapping(data: dict, path: str | Path) -> Track:
+    """Validate a track file's mapping (``path`` names it in errors)."""
     c = Checker(path)
     c.known_keys(data, TRACK_KEYS)
     name = c.string(data, "name")

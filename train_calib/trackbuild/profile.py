@@ -151,7 +151,7 @@ def align(profile_stops: list[float] | None, found: np.ndarray, source: str, tol
         p, c = p[[0, -1]], found[[0, -1]]
     span_p, span_c = p[-1] - p[0], c[-1] - c[0]
     if span_c <= 0 or abs(span_c / span_p - 1.0) > tolerance:
-        raise ConfigError(source, "stops", f"the profile's stops span {span_p:.0f} m, the runs' {span_c:.0f} m "
+        raise ConfigError(source, "stops", f"the profile's stops span {span_p:.0f} m, the geometry's {span_c:.0f} m "
                           f"(more than {tolerance:.0%} apart: not the same line, or a stop missed)")  # fmt: skip
     return Alignment(p, np.asarray(c, dtype=float), note)
 
