@@ -136,3 +136,5 @@ def test_track_option_takes_a_geometry_plus_a_ttobench_profile(tmp_path, capsys)
     other = validation / "ttobench" / "tracks" / "SE_Vasteras_Kolback.json"
     with pytest.raises(ConfigError, match="the profile's stops span 19305 m"):
         load_track(f"{out}+{other}")
+    with pytest.raises(ConfigError, match="a TTOBench track has no coordinates: give GEOMETRY"):
+        load_track(profile)

@@ -158,7 +158,7 @@ def load_track(path: str | Path) -> Track:
     ``GEOMETRY.yaml+PROFILE.json``: a track file's geometry and stations with the gradients, limits and curves of a
     TTOBench track JSON mapped onto them through the stops (``train_calib.trackbuild.combine``).
     """
-    if str(path).lower().endswith(".json") and "+" in str(path):
+    if str(path).lower().endswith(".json"):
         from .trackbuild.combine import combined_track_mapping
 
         data, source = combined_track_mapping(str(path))

@@ -15,6 +15,9 @@ from .profile import align, mapped_table, read_ttobench_track
 def combined_track_mapping(spec: str) -> tuple[dict, str]:
     """The track file's mapping of ``GEOMETRY.yaml+PROFILE.json`` and the name to use in errors."""
     geometry_path, _, profile_path = spec.rpartition("+")
+    if not geometry_path:
+        raise ConfigError(spec, "", "a TTOBench track has no coordinates: give GEOMETRY.yaml+PROFILE.json "
+                          "(GEOMETRY from train-calib build-track)")  # fmt: skip
     data = load_yaml_mapping(geometry_path, "track file")
     stations = data.get("stations")
     if not isinstance(stations, list) or len(stations) < 2:
