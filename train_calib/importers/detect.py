@@ -34,6 +34,8 @@ def resolve_format(path: Path, text: str, requested: str | None) -> str:
         return found
     if found is not None and found != requested:
         raise ImportFormatError(f"{path}: not a {requested.upper()} file (its content looks like {found.upper()})")
+    if found is None and requested == "csv" and text.strip():
+        raise ImportFormatError(f"{path}: no CSV header row (the first line names the columns: time,lat,lon,...)")
     if found is None:
         raise ImportFormatError(f"{path}: not a {requested.upper()} file")
     return requested
