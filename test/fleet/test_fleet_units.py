@@ -48,11 +48,13 @@ def test_pooling_and_trend_match_numpy(tmp_path: Path) -> None:
 
 
 def test_flag_rule(tmp_path: Path) -> None:
-    """Five ordinary units, one high, one rising: only those two are flagged, each for its reason."""
+    """Five ordinary units, one high, one rising, one low: only high and rising are flagged, each for its reason;
+    the low one is reported, not flagged (the rule is one-sided: faults raise the resistance)."""
     runs = []
     rng = np.random.default_rng(0)
     for unit, level, slope in [("u0", 0.040, 0.0), ("u1", 0.041, 0.0), ("u2", 0.039, 0.0), ("u3", 0.0405, 0.0),
-                               ("u4", 0.0395, 0.0), ("high", 0.060, 0.0), ("rising", 0.040, 0.012)]:  # fmt: skip
+                               ("u4", 0.0395, 0.0), ("high", 0.060, 0.0), ("rising", 0.040, 0.012),
+                               ("low", 0.025, 0.0)]:  # fmt: skip
         for k in range(10):
             x = 5.0 + k / 10
             runs.append({"unit": unit, "date_s": T_REF_S + x * YEAR_S, "r80_std": 0.001,
@@ -62,3 +64,4 @@ def test_flag_rule(tmp_path: Path) -> None:
     assert sorted(n for n, u in units.items() if u["flag"]) == ["high", "rising"]
     assert "above the fleet" in units["high"]["reason"] and units["high"]["z_fleet"] > 3
     assert "rising" in units["rising"]["reason"] and units["rising"]["z_trend"] > 3
+    assert units["low"]["z_fleet"] < -3 and units["low"]["reason"].startswith("(not flagged: r80 below the fleet")

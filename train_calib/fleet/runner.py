@@ -119,7 +119,7 @@ def connect(cluster: Cluster) -> tuple[Any, Any]:
         threads_per_worker=1,
         processes=True,
         host="127.0.0.1",
-        dashboard_address=None,
+        dashboard_address="127.0.0.1:0",  # its HTTP server on a free port of this host only
         silence_logs=logging.ERROR,
     )
     return Client(local, set_as_default=False), local
