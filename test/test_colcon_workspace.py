@@ -225,3 +225,21 @@ def test_colcon_workspace_colcon_test_of_the_build_dependent_tests(workspace):
     errors, failures, _skipped, tests = map(int, summary.groups())
     assert errors == 0 and failures == 0 and tests > 10, done.stdout[-3000:]
     assert "test_window_kernel" in xml and "has no built C kernel" in xml, xml[:2000]
+
+
+def test_rosdep_crawl_finds_both_packages_through_the_link(tmp_path):
+    """`rosdep install --from-paths src --ignore-src` crawls with catkin_pkg: with the README's link it finds
+    train_calib_msgs in the workspace (without it, "Cannot locate rosdep definition for [train_calib_msgs]")."""
+    from catkin_pkg.packages import find_packages
+
+    clone = tmp_path / "src" / "train_calib"
+    (clone / "msg_defs").mkdir(parents=True)
+    shutil.copy2(REPO / "package.xml", clone / "package.xml")
+    shutil.copy2(REPO / "msg_defs" / "package.xml", clone / "msg_defs" / "package.xml")
+    assert {p.name for p in find_packages(str(tmp_path / "src")).values()} == {"train_calib"}  # stops at the clone
+    (link,) = recipe()["link"]
+    subprocess.run(link, shell=True, cwd=tmp_path / "src", check=True)
+    found = {p.name: p for p in find_packages(str(tmp_path / "src")).values()}
+    assert set(found) == {"train_calib", "train_calib_msgs"}
+    depends = {d.name for d in found["train_calib"].exec_depends + found["train_calib"].build_depends}
+    assert "train_calib_msgs" in depends
