@@ -53,6 +53,7 @@ IMPORT_KEYS: dict[str, tuple[str, ...]] = {
     "pandas": ("python3-pandas",),
     "filterpy": ("python3-filterpy-pip",),
     "mcap_ros2": ("mcap-ros2-support",),
+    "catkin_pkg": ("python3-catkin-pkg",),  # rosdep's crawl of a workspace (test_colcon_workspace)
 }
 
 # declared keys that no import names: key -> (why, a check that the reason still holds)
@@ -60,6 +61,10 @@ USED_WITHOUT_IMPORT = {
     "python3-dev": ("setup.py builds the window fit's C extension", lambda: "Extension(" in _text("setup.py")),
     "ros2launch": ("`ros2 launch` runs launch/train_calib.launch.py", lambda: (REPO / "launch").is_dir()),
     "python3-pytest-timeout": ("pytest.ini sets `timeout`", lambda: "\ntimeout =" in _text("pytest.ini")),
+    "python3-colcon-common-extensions": (
+        "test_colcon_workspace runs `colcon build` and `colcon test`",
+        lambda: "colcon build" in _text("test/test_colcon_workspace.py"),
+    ),
 }
 
 # keys with no rule in rosdep's public database (ros/rosdistro, checked 2026-08): distribution packages exist
