@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 
 from .bagio import iter_bag, stamp_ns
-from .estimation.coast_regression import CoastSettings, RunArrays, fit_coasts, power_states
+from .estimation.coast_regression import CoastSettings, RunArrays, fit_coasts, resistance_and_sigma
 from .estimation.records import EFFORT_COMPUTED, EFFORT_SOURCES
 from .physics import KMH, davis
 from .regime_codes import REGIME_NAMES, regime_name
@@ -287,12 +287,12 @@ def resistance_at_speeds(
     out: dict[str, dict[str, float]] = {}
     for kmh in REFERENCE_SPEEDS_KMH:
         v = kmh / 3.6
-        h = np.array([1.0, v, v * v])
-        row = {"value": float(h @ r), "std": float(math.sqrt(max(float(h @ cov @ h), 0.0)))}
+        value, std = resistance_and_sigma(r, cov, v)
+        row = {"value": value, "std": std}
         if train is not None:
             row["manufacturer"] = float(train.davis(v))
         if truth is not None and all(c in truth for c in COEFFS):
-            row["truth"] = float(h @ np.array([truth[c] for c in COEFFS]))
+            row["truth"] = float(np.array([1.0, v, v * v]) @ np.array([truth[c] for c in COEFFS]))
             row["vs_truth"] = (row["value"] - row["truth"]) / row["truth"] if row["truth"] else None
         out[str(kmh)] = row
     return out
@@ -305,14 +305,9 @@ def best_estimate(
     measurements (offline; docs/estimator.md, "Coast regression"), with its covariance and r(v) at the reference
     speeds. Without a coasting stretch it is the train file's values with the prior's covariance, and says so."""
     settings = coast if coast is not None else CoastSettings()
-    power = None
-    if np.any(meas["power_valid"]):
-        power = power_states(
-            train, meas["power_valid"], meas["power_consumed"], meas["power_regenerated"], settings.power_threshold
-        )
-    arrays = RunArrays(
-        t=meas["t"], v=meas["v"], g=meas["track_force"], tunnel=meas["tunnel_fraction"], run=meas["run_id"], power=power
-    )
+    columns = ("t", "v", "track_force", "tunnel_fraction", "run_id", "power_valid", "power_consumed",
+               "power_regenerated")  # fmt: skip
+    arrays = RunArrays.from_columns(*(meas[c] for c in columns), train, settings)
     fit = fit_coasts(arrays, train, settings)
     out: dict[str, Any] = {
         "method": "coast regression over the whole run",
@@ -593,8 +588,8 @@ def _format_pooled(pooled: dict[str, Any] | None) -> list[str]:
     r, cov = np.array([pooled[c] for c in COEFFS]), np.asarray(pooled["covariance"], dtype=float)
     parts = []
     for kmh in REFERENCE_SPEEDS_KMH:
-        h = np.array([1.0, kmh / 3.6, (kmh / 3.6) ** 2])
-        parts.append(f"{kmh} km/h {h @ r:.4f} +- {math.sqrt(max(float(h @ cov @ h), 0.0)):.4f}")
+        value, std = resistance_and_sigma(r, cov, kmh / 3.6)
+        parts.append(f"{kmh} km/h {value:.4f} +- {std:.4f}")
     return [f"    pooled over {pooled.get('windows', 0)} windows, r(v) N/kg: " + ", ".join(parts)]
 
 

@@ -38,6 +38,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..train import Davis, TrainSpec
+from .effort import PowerEffort
 
 _MIN_SPEED_NOISE = 0.002  # m/s: floor of the estimated speed noise
 _SHAPE_SPEED = 20.0  # m/s: speed at which a zero coefficient's floor std is set
@@ -103,6 +104,12 @@ def noise_from_differences(d2: np.ndarray, d3: np.ndarray, quantum: float) -> fl
     return max(robust, quantum / math.sqrt(12.0), _MIN_SPEED_NOISE)
 
 
+def resistance_and_sigma(r: np.ndarray, covariance: np.ndarray, v: float) -> tuple[float, float]:
+    """(r(v), its std) in N/kg at speed v (m/s), the std through h = (1, v, v^2) of the 3x3 covariance."""
+    h = np.array([1.0, v, v * v])
+    return float(h @ r), float(math.sqrt(max(float(h @ covariance @ h), 0.0)))
+
+
 def speed_noise(v: np.ndarray) -> float:
     """Std of the speed measurement noise (m/s) from the data while moving (> 5 m/s): noise_from_differences."""
     if v.size < 4:
@@ -157,8 +164,7 @@ def power_states(
 ) -> np.ndarray:
     """POWER_* per sample from the pantograph power: traction where the wheel power eta (P - P_aux) / (gamma m)
     exceeds ``threshold`` (W/kg), electric braking where anything is regenerated."""
-    eta_per_mass = train.transmission_efficiency / train.effective_mass_kg
-    wheel = eta_per_mass * (np.asarray(consumed_w, dtype=float) - train.auxiliary_power_kw * 1e3)
+    wheel = PowerEffort(train).wheel_power(np.asarray(consumed_w, dtype=float))
     drive = (wheel > threshold) | (np.asarray(regenerated_w, dtype=float) > 0.0)
     out = np.where(drive, POWER_DRIVE, POWER_NONE).astype(np.int8)
     out[~np.asarray(valid, dtype=bool)] = POWER_UNKNOWN
@@ -177,20 +183,41 @@ class RunArrays:
     power: np.ndarray | None = None  # POWER_* per sample (None: no power measured)
 
     @classmethod
-    def from_series(cls, series, train: TrainSpec | None = None, settings: CoastSettings | None = None) -> RunArrays:
-        """From a MeasurementSeries; with the train, the power states of its traction power (if any)."""
+    def from_columns(
+        cls,
+        t: np.ndarray,
+        v: np.ndarray,
+        g: np.ndarray,
+        tunnel: np.ndarray,
+        run: np.ndarray,
+        power_valid: np.ndarray,
+        power_consumed_w: np.ndarray,
+        power_regenerated_w: np.ndarray,
+        train: TrainSpec | None = None,
+        settings: CoastSettings | None = None,
+    ) -> RunArrays:
+        """From measurement columns (t in s); with the train, the power states of the traction power (if any)."""
         power = None
-        if train is not None and len(series) and np.any(series.power_valid):
+        if train is not None and np.any(power_valid):
             threshold = (settings or CoastSettings()).power_threshold
-            power = power_states(train, series.power_valid, series.power_consumed, series.power_regenerated, threshold)
+            power = power_states(train, power_valid, power_consumed_w, power_regenerated_w, threshold)
         return cls(
-            t=(series.stamp_ns - series.stamp_ns[0]) * 1e-9 if len(series) else np.zeros(0),
-            v=np.asarray(series.v, dtype=float),
-            g=np.asarray(series.track_force, dtype=float),
-            tunnel=np.asarray(series.tunnel_fraction, dtype=float),
-            run=np.asarray(series.run_id, dtype=np.int64),
+            t=np.asarray(t, dtype=float),
+            v=np.asarray(v, dtype=float),
+            g=np.asarray(g, dtype=float),
+            tunnel=np.asarray(tunnel, dtype=float),
+            run=np.asarray(run, dtype=np.int64),
             power=power,
         )
+
+    @classmethod
+    def from_series(cls, series, train: TrainSpec | None = None, settings: CoastSettings | None = None) -> RunArrays:
+        """From a MeasurementSeries (t from its first stamp): :meth:`from_columns`."""
+        t = (series.stamp_ns - series.stamp_ns[0]) * 1e-9 if len(series) else np.zeros(0)
+        return cls.from_columns(
+            t, series.v, series.track_force, series.tunnel_fraction, series.run_id, series.power_valid,
+            series.power_consumed, series.power_regenerated, train, settings,
+        )  # fmt: skip
 
 
 @dataclass
@@ -242,8 +269,7 @@ class CoastFit:
 
     def resistance(self, v: float) -> tuple[float, float]:
         """(r(v), its std) in N/kg at speed v (m/s)."""
-        h = np.array([1.0, v, v * v])
-        return float(h @ self.r), float(math.sqrt(max(h @ self.covariance @ h, 0.0)))
+        return resistance_and_sigma(self.r, self.covariance, v)
 
 
 def slope_window(settings: CoastSettings, sigma_v: float, period: float, prior: np.ndarray, v_max: float) -> float:
@@ -644,5 +670,6 @@ __all__ = [
     "fit_coasts",
     "power_states",
     "prior_covariance",
+    "resistance_and_sigma",
     "speed_noise",
 ]
