@@ -119,7 +119,7 @@ def test_replay_writes_output_bag_summary_and_report(bag, tmp_path, capsys):
     png = (out / "report.png").read_bytes()
     assert png[:8] == b"\x89PNG\r\n\x1a\n"
     width, height = int.from_bytes(png[16:20], "big"), int.from_bytes(png[20:24], "big")
-    assert (width, height) == (1100, 1850)  # six panels against time, r(v) against speed
+    assert (width, height) == (1350, 2118)  # seven panels against time (power), the profile along s, r(v)
     # summary.json: the configuration, the on-board r(v) with sigma, the whole run's best estimate
     assert summary["ukf_preset"] == "learning"
     for kmh in ("40", "80", "120"):

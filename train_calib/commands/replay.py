@@ -186,6 +186,7 @@ def execute(args: argparse.Namespace, out: Path, track: str, train: str) -> dict
     from ..replay import ReplayOptions, replay
     from ..report import write_report
     from ..summary import read_outputs, summarize, write_summary
+    from ..track import load_track
     from ..train import load_train
 
     log = (lambda text: None) if args.quiet else (lambda text: print(text, file=sys.stderr, flush=True))
@@ -256,6 +257,7 @@ def execute(args: argparse.Namespace, out: Path, track: str, train: str) -> dict
                 out / "report.png",
                 outputs,
                 train_spec,
+                track=load_track(paths.track_file(track)),
                 truth=truth_values,
                 title=title,
                 best=summary.get("best"),
