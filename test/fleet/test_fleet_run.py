@@ -4,6 +4,7 @@ processes (tcp, a killed worker, tls with a CA made here) giving the same rows, 
 
 from __future__ import annotations
 
+import functools
 import json
 import os
 import shutil
@@ -11,6 +12,7 @@ import signal
 import socket
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -27,6 +29,7 @@ from train_calib.fleet.simulate import FleetSpec, simulate_fleet
 
 SPEC = FleetSpec(units=6, faulty=2, runs_per_unit=8, seed=0)
 DASK = Path(sys.executable).parent / "dask"
+HERE = Path(__file__).resolve().parent
 BAD_ROWS = 2  # a missing bag and a corrupt one, unit "broken": the manifest's first two lines
 PREFIX = 20  # the cluster tests run the manifest's first 20 lines (prefix.csv)
 
@@ -146,7 +149,8 @@ class DaskCluster:
         self.address = f"{self.scheme}://127.0.0.1:{free_port()}"
         self.tls = tls
         opts = ["--tls-ca-file", tls[0], "--tls-cert", tls[1], "--tls-key", tls[2]] if tls else []
-        env = dict(os.environ)
+        env = dict(os.environ)  # the workers import fleet_hold (the killed-worker test's task) from this folder
+        env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(HERE), env.get("PYTHONPATH", "")]))
         host = ["--host", "127.0.0.1", "--no-dashboard"]
         port = self.address.rsplit(":", 1)[1]
         commands = [("scheduler", [str(DASK), "scheduler", *host, "--port", port, "--no-show", *opts])]
@@ -204,23 +208,52 @@ def test_dask_scheduler_same_rows(fleet: Path, dask_cluster: DaskCluster, tmp_pa
     assert json.loads((out / "fleet.json").read_text())["scheduler"] == dask_cluster.address
 
 
-def test_killed_worker_loses_nothing(fleet: Path, dask_cluster: DaskCluster, tmp_path: Path) -> None:
+def test_killed_worker_mid_run_loses_nothing(fleet: Path, dask_cluster: DaskCluster, tmp_path: Path) -> None:
+    """A worker is killed (SIGKILL) while provably inside a run: the run holds (fleet_hold) after reporting its
+    start with the worker's pid, the test kills that pid, then releases the hold. The run is redone by another
+    worker process, and runs.parquet has every row once, equal to the local run's."""
+    from fleet_hold import held_run
+
     with dask_cluster.client() as c:
-        pids = c.run(os.getpid)
+        c.wait_for_workers(2, timeout=30)
+        pids = set(c.run(os.getpid).values())
     assert len(pids) == 2
+    victim = BAD_ROWS + 3  # an ok run in the middle of the first window
+    hold = tmp_path / "hold"
+    hold.mkdir()
     killed: list[int] = []
 
-    def on_row(row, result) -> None:
-        if result.ok + result.errors == BAD_ROWS + 2 and not killed:
-            victim = sorted(pids.values())[0]
-            os.kill(victim, signal.SIGKILL)  # a worker process of our cluster, mid-run
-            killed.append(victim)
+    def killer() -> None:
+        deadline = time.monotonic() + 90
+        while time.monotonic() < deadline:
+            started = list(hold.glob(f"start-{victim}-*"))
+            if started:
+                pid = int(started[0].name.rsplit("-", 1)[1])
+                os.kill(pid, signal.SIGKILL)  # the worker inside the held run (one of our cluster's: asserted below)
+                killed.append(pid)
+                break
+            time.sleep(0.02)
+        (hold / "release").touch()
 
+    thread = threading.Thread(target=killer, daemon=True)
+    thread.start()
     rows = read_manifest(fleet / "prefix.csv")
-    result = run_fleet(rows, tmp_path, Cluster(scheduler=dask_cluster.address), on_row=on_row)
-    assert killed and result.total == len(rows) and result.ok + result.errors == len(rows)
-    assert_same_rows(fleet / "out" / "runs.parquet", tmp_path / "runs.parquet")
-    with dask_cluster.client() as c:  # the nanny restarted it: the cluster is whole again
+    out = tmp_path / "out"
+    result = run_fleet(rows, out, Cluster(scheduler=dask_cluster.address),
+                       task=functools.partial(held_run, hold_dir=str(hold), victim=victim))  # fmt: skip
+    thread.join(timeout=5)
+    assert len(killed) == 1 and killed[0] in pids
+    # the victim's run started twice: in the killed process, then in another one
+    starts = sorted(int(p.name.rsplit("-", 1)[1]) for p in hold.glob(f"start-{victim}-*"))
+    assert len(starts) == 2 and killed[0] in starts and starts[0] != starts[1]
+    # every run was started, none lost; the rows are complete, once each, equal to the local run's
+    assert {int(p.name.split("-")[1]) for p in hold.glob("start-*")} == set(range(len(rows)))
+    assert result.total == result.ok + result.errors == len(rows) and result.errors == BAD_ROWS
+    assert result.computed == len(rows)
+    runs = pd.read_parquet(out / "runs.parquet")
+    assert list(runs["index"]) == list(range(len(rows))) and runs.loc[victim, "status"] == "ok"
+    assert_same_rows(fleet / "out" / "runs.parquet", out / "runs.parquet")
+    with dask_cluster.client() as c:  # the nanny restarted the killed process: the cluster is whole again
         c.wait_for_workers(2, timeout=30)
         assert killed[0] not in c.run(os.getpid).values()
 

@@ -217,10 +217,12 @@ def run_fleet(
     window: int | None = None,
     on_row: Callable[[dict[str, Any], FleetResult], None] | None = None,
     client: Any = None,
+    task: Callable[[dict[str, Any]], dict[str, Any]] = process_run,
 ) -> FleetResult:
     """Every manifest row through :func:`process_run`, rows streamed to ``out/runs.parquet`` in manifest order.
     ``on_row(row, result)`` is called after each row is written (progress, tests). ``client``: an existing Dask
-    client to use instead of connecting (tests)."""
+    client to use instead of connecting (tests). ``task``: what a worker runs per job (tests wrap
+    :func:`process_run` to hold a run; it must be importable on the workers)."""
     from distributed import as_completed
 
     if client is None:
@@ -274,7 +276,7 @@ def run_fleet(
                         continue
                 pending = pending_set()
                 future = state["client"].submit(
-                    process_run, job, key=f"fleet-run-{row.index}-{os.getpid()}-{start_ns}", pure=False
+                    task, job, key=f"fleet-run-{row.index}-{os.getpid()}-{start_ns}", pure=False
                 )
                 index_of[future.key] = row.index
                 pending.add(future)
