@@ -1,0 +1,352 @@
+"""``train-calib predict``, ROS-free: every coast of a recorded run predicted from its measured start (s, v) to its
+measured end position, per model, against what the bag shows (docs/prediction.md).
+
+Coasts are the runs of consecutive samples that the regime classifier (regime_node's rule, the pipeline's
+``regimes``) labels COASTING within one run, at least ``min_duration_s`` long. The regime of a sample is the
+regime of the step that ends there, so the first coasting sample is the first state after which the train coasts
+and the last one the state where it stops coasting: the prediction runs between these two measurements. Models:
+
+- ``train_file``: the train file's r(v), with the estimator's prior covariance as its sigma;
+- ``causal``: the run's own estimate as published at the coast's first sample (r and its covariance);
+- ``given``: ``--resistance`` (:func:`resistance_source`).
+
+Sigma of the predicted end speed: the sigma points over (v0, r0, r1, r2) with the start speed's measurement variance
+and the model's covariance, and the end speed's measurement variance added (it is a measured speed that is
+compared). Traction energy (with traction power): the pantograph energy the model needs for the measured speed
+profile (the estimates' v and acceleration, the measurements' g(s)) against the metered one.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..errors import TrainCalibError
+from ..estimation.coast_regression import prior_covariance
+from ..estimation.config import UKFConfig
+from ..regime_codes import COASTING
+from ..sim.model import TrackTerms
+from ..track import Track
+from ..train import TrainSpec
+from .coast import GradientIntegral, coast_with_sigma
+
+CSV_COLUMNS = (
+    "start_stamp_s",
+    "start_s_m",
+    "end_s_m",
+    "start_speed_kmh",
+    "measured_end_speed_kmh",
+    "measured_duration_s",
+    "model",
+    "predicted_end_speed_kmh",
+    "predicted_end_speed_sigma_kmh",
+    "predicted_duration_s",
+)
+MODELS = ("train_file", "causal", "given")
+KMH = 3.6
+
+
+class ResistanceSourceError(TrainCalibError):
+    """--resistance cannot be used; the message names the option or the file."""
+
+
+@dataclass
+class GivenResistance:
+    """A resistance from --resistance: r (r0, r1, r2 in N/kg, N/(kg m/s), N/(kg (m/s)^2)), its 3x3 covariance."""
+
+    r: np.ndarray
+    covariance: np.ndarray
+    source: str
+
+
+def resistance_source(text: str, train: TrainSpec) -> GivenResistance:
+    """Parse --resistance: ``r0,r1,r2`` (no sigma), a replay's ``summary.json`` (its whole-run best estimate when it
+    has one, else the final published one, with covariance; refused when it is another train's), or a fleet's
+    ``units.parquet[:UNIT]`` (the unit's pooled r(40/80/120 km/h) solved for r0, r1, r2)."""
+    opt = "--resistance"
+    path_text, _, unit = text.partition(":") if text.lower().split(":")[0].endswith(".parquet") else (text, "", "")
+    path = Path(path_text)
+    if path.suffix.lower() == ".json":
+        return _from_summary(path, train)
+    if path.suffix.lower() == ".parquet":
+        return _from_units(path, unit)
+    parts = [p.strip() for p in text.split(",")]
+    try:
+        values = [float(p) for p in parts]
+    except ValueError:
+        values = []
+    if len(values) != 3 or not all(math.isfinite(v) and v >= 0.0 for v in values):
+        raise ResistanceSourceError(
+            f"{opt} {text!r}: expected r0,r1,r2 (three non-negative numbers, N/kg, N/(kg m/s), N/(kg (m/s)^2)), "
+            "a summary.json or a units.parquet[:UNIT]"
+        )
+    return GivenResistance(np.array(values), np.zeros((3, 3)), f"r0,r1,r2 = {text}")
+
+
+def _from_summary(path: Path, train: TrainSpec) -> GivenResistance:
+    opt = "--resistance"
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise ResistanceSourceError(f"{opt} {path}: file not found") from None
+    except (OSError, ValueError) as exc:
+        raise ResistanceSourceError(f"{opt} {path}: not a readable summary.json ({exc.__class__.__name__})") from None
+    if not isinstance(data, dict) or not isinstance(data.get("train"), dict):
+        raise ResistanceSourceError(f"{opt} {path}: not a train-calib summary.json (no 'train')")
+    name = data["train"].get("name")
+    if name != train.name:
+        raise ResistanceSourceError(f"{opt} {path}: a summary of train {name!r}, not of --train {train.name!r}")
+    best, final = data.get("best"), data.get("final")
+    try:
+        if isinstance(best, dict) and best.get("learnt"):
+            r = np.array([float(best[c]) for c in ("r0", "r1", "r2")])
+            cov = np.asarray(best["covariance"], dtype=float).reshape(3, 3)
+            what = "whole-run best estimate"
+        elif isinstance(final, dict):
+            r = np.array([float(final[c]["value"]) for c in ("r0", "r1", "r2")])
+            cov = np.asarray(final["covariance"], dtype=float).reshape(3, 3)
+            what = "final estimate"
+        else:
+            raise KeyError("final")
+    except (KeyError, TypeError, ValueError):
+        raise ResistanceSourceError(f"{opt} {path}: the summary holds no estimate (no 'best' or 'final')") from None
+    if not (np.all(np.isfinite(r)) and np.all(np.isfinite(cov))):
+        raise ResistanceSourceError(f"{opt} {path}: the summary's estimate is not finite")
+    return GivenResistance(r, cov, f"{path} ({what})")
+
+
+def _from_units(path: Path, unit: str) -> GivenResistance:
+    opt = "--resistance"
+    try:
+        import pyarrow.parquet as pq
+
+        table = pq.read_table(path).to_pylist()
+    except FileNotFoundError:
+        raise ResistanceSourceError(f"{opt} {path}: file not found") from None
+    except Exception as exc:
+        raise ResistanceSourceError(f"{opt} {path}: not a readable units.parquet ({exc.__class__.__name__})") from None
+    need = ("unit", "r40", "r80", "r120", "r40_std", "r80_std", "r120_std")
+    if not table or any(k not in table[0] for k in need):
+        raise ResistanceSourceError(f"{opt} {path}: not a fleet units.parquet (columns {', '.join(need)})")
+    if not unit:
+        if len(table) != 1:
+            raise ResistanceSourceError(f"{opt} {path}: {len(table)} units: name one as {path}:UNIT")
+        row = table[0]
+    else:
+        rows = [t for t in table if t["unit"] == unit]
+        if not rows:
+            raise ResistanceSourceError(f"{opt} {path}: no unit {unit!r}")
+        row = rows[0]
+    values = [row[k] for k in need[1:]]
+    if any(v is None or not math.isfinite(v) for v in values):
+        raise ResistanceSourceError(f"{opt} {path}: unit {row['unit']!r} has no pooled r(v)")
+    speeds = np.array([40.0, 80.0, 120.0]) / KMH
+    A = np.stack([np.ones(3), speeds, speeds**2], axis=1)
+    Ainv = np.linalg.inv(A)
+    r = Ainv @ np.array(values[:3])
+    cov = Ainv @ np.diag(np.array(values[3:]) ** 2) @ Ainv.T
+    return GivenResistance(r, cov, f"{path}:{row['unit']} (pooled r(40/80/120 km/h))")
+
+
+@dataclass
+class CoastStretch:
+    """One coast: indices into the measurements, the estimate at its start (r, 3x3 covariance)."""
+
+    start_stamp_ns: int
+    start_s_m: float
+    end_s_m: float
+    start_v_ms: float
+    end_v_ms: float
+    start_v_var: float
+    end_v_var: float
+    duration_s: float
+    causal_r: np.ndarray
+    causal_cov: np.ndarray
+
+
+def find_coasts(out: Any, min_duration_s: float) -> list[CoastStretch]:
+    """The coasts of a PipelineOutput (regimes COASTING, consecutive, one run, >= min_duration_s)."""
+    meas = {m.stamp_ns: m for m in out.measurements}
+    est = {e.stamp_ns: e for e in out.estimates}
+    coasts: list[CoastStretch] = []
+    group: list[Any] = []
+
+    def close() -> None:
+        if len(group) >= 2:
+            a, b = group[0], group[-1]
+            ma, mb, e = meas.get(a.stamp_ns), meas.get(b.stamp_ns), est.get(a.stamp_ns)
+            dur = (b.stamp_ns - a.stamp_ns) * 1e-9
+            if ma is not None and mb is not None and e is not None and dur >= min_duration_s and mb.s > ma.s:
+                coasts.append(CoastStretch(a.stamp_ns, ma.s, mb.s, ma.v, mb.v, ma.v_variance, mb.v_variance, dur,
+                                           np.array([e.r0, e.r1, e.r2]), np.asarray(e.covariance)[2:, 2:].copy()))
+        group.clear()
+
+    for rec in out.regimes:
+        if rec.regime == COASTING and (not group or group[-1].run_id == rec.run_id):
+            group.append(rec)
+        else:
+            close()
+            if rec.regime == COASTING:
+                group.append(rec)
+    close()
+    return coasts
+
+
+@dataclass
+class PredictResult:
+    rows: list[dict[str, Any]] = field(default_factory=list)
+    summary: dict[str, Any] = field(default_factory=dict)
+
+
+def predict_coasts(
+    coasts: list[CoastStretch], track: Track, train: TrainSpec, given: GivenResistance | None, *,
+    ukf: UKFConfig | None = None, ds_max_m: float = 100.0,
+) -> list[dict[str, Any]]:  # fmt: skip
+    """One row (CSV_COLUMNS) per coast and model."""
+    cfg = ukf if ukf is not None else UKFConfig()
+    terms = TrackTerms(track, train.length_m)
+    G = GradientIntegral(terms)
+    file_r = np.array(train.davis.as_tuple())
+    file_cov = prior_covariance(train.davis, cfg.prior_scale_std, cfg.prior_coefficient_std)
+    rows = []
+    for c in coasts:
+        models: list[tuple[str, np.ndarray, np.ndarray]] = [("train_file", file_r, file_cov),
+                                                            ("causal", c.causal_r, c.causal_cov)]  # fmt: skip
+        if given is not None:
+            models.append(("given", given.r, given.covariance))
+        lanes = []
+        for _, r, P in models:
+            cov = np.zeros((4, 4))
+            cov[0, 0] = c.start_v_var
+            cov[1:, 1:] = P
+            lanes.append((np.concatenate(([c.start_v_ms], r)), cov))
+        steps = max(math.ceil((c.end_s_m - c.start_s_m) / ds_max_m), 4)
+        res = coast_with_sigma(terms, G, c.start_s_m, lanes, np.array([c.end_s_m]), tunnel_factor=train.tunnel_factor,
+                               ds_max_m=ds_max_m, max_steps=steps)  # fmt: skip
+        for (name, _, _), (v, vs, t, _ts) in zip(models, res):
+            sigma = math.sqrt(float(vs[0]) ** 2 + c.end_v_var) if math.isfinite(float(vs[0])) else math.nan
+            rows.append({
+                "start_stamp_s": round(c.start_stamp_ns * 1e-9, 3),
+                "start_s_m": round(c.start_s_m, 2),
+                "end_s_m": round(c.end_s_m, 2),
+                "start_speed_kmh": round(c.start_v_ms * KMH, 3),
+                "measured_end_speed_kmh": round(c.end_v_ms * KMH, 3),
+                "measured_duration_s": round(c.duration_s, 3),
+                "model": name,
+                "predicted_end_speed_kmh": round(float(v[0]) * KMH, 3),
+                "predicted_end_speed_sigma_kmh": round(sigma * KMH, 3),
+                "predicted_duration_s": round(float(t[0]), 3),
+            })  # fmt: skip
+    return rows
+
+
+def model_stats(rows: list[dict[str, Any]], min_duration_s: float = 0.0) -> dict[str, dict[str, Any]]:
+    """Per model: coasts, median / 90th percentile |end speed error| (km/h), |duration error| (%), share of
+    measured end speeds inside the predicted 2 sigma; over coasts of at least ``min_duration_s``."""
+    out: dict[str, dict[str, Any]] = {}
+    for model in MODELS:
+        rs = [r for r in rows if r["model"] == model and r["measured_duration_s"] >= min_duration_s]
+        if not rs:
+            continue
+        ev = np.array([abs(r["predicted_end_speed_kmh"] - r["measured_end_speed_kmh"]) for r in rs])
+        ed = np.array([abs(r["predicted_duration_s"] - r["measured_duration_s"]) / r["measured_duration_s"] * 100.0
+                       for r in rs])  # fmt: skip
+        sig = np.array([r["predicted_end_speed_sigma_kmh"] for r in rs])
+        inside = ev <= 2.0 * sig
+        out[model] = {
+            "coasts": len(rs),
+            "end_speed_error_kmh_median": _q(ev, 50),
+            "end_speed_error_kmh_p90": _q(ev, 90),
+            "duration_error_pct_median": _q(ed, 50),
+            "duration_error_pct_p90": _q(ed, 90),
+            "inside_2sigma_share": float(np.mean(inside)),
+        }
+    return out
+
+
+def _q(x: np.ndarray, q: float) -> float | None:
+    x = x[np.isfinite(x)]
+    return float(np.percentile(x, q)) if x.size else None
+
+
+def traction_energy(out: Any, train: TrainSpec, given: GivenResistance | None) -> dict[str, Any] | None:
+    """Pantograph traction energy (kWh) over the run: metered (power_consumed integrated over the samples with
+    power) against each model's need for the measured speed profile: per sample F = a + r(v) + g(s) (N/kg, the
+    estimate's v and acceleration, the measurement's g), wheel power max(F, 0) v gamma m, pantograph = wheel / eta +
+    auxiliary; None without traction power."""
+    meas = {m.stamp_ns: m for m in out.measurements}
+    rows = [(e, meas.get(e.stamp_ns)) for e in out.estimates]
+    rows = [(e, m) for e, m in rows if m is not None and m.power_valid]
+    if len(rows) < 2:
+        return None
+    t = np.array([e.stamp_ns for e, _ in rows]) * 1e-9
+    dt = np.diff(t, prepend=t[0])
+    dt[dt > 30.0] = 0.0  # gaps (a standstill between runs without samples) carry no energy
+    v = np.array([e.v for e, _ in rows])
+    a = np.array([e.acceleration for e, _ in rows])
+    g = np.array([m.track_force for _, m in rows])
+    k = 1.0 + train.tunnel_factor * np.array([m.tunnel_fraction for _, m in rows])
+    p_meas = np.array([m.power_consumed for _, m in rows])
+    m_eff = train.effective_mass_kg
+    aux = train.auxiliary_power_kw * 1000.0
+    causal = np.array([[e.r0, e.r1, e.r2] for e, _ in rows])
+    models = {"train_file": np.tile(train.davis.as_tuple(), (len(rows), 1)), "causal": causal}
+    if given is not None:
+        models["given"] = np.tile(given.r, (len(rows), 1))
+    j = 1.0 / 3.6e6
+    res: dict[str, Any] = {"measured_kwh": float(np.sum(p_meas * dt) * j)}
+    for name, r in models.items():
+        f = a + r[:, 0] + v * (r[:, 1] + k * r[:, 2] * v) + g
+        wheel = np.maximum(f, 0.0) * v * m_eff
+        pant = np.where(f > 0.0, wheel / train.transmission_efficiency + aux, aux)
+        e_kwh = float(np.sum(pant * dt) * j)
+        res[f"{name}_kwh"] = e_kwh
+        metered = res["measured_kwh"]
+        res[f"{name}_error_pct"] = (e_kwh - metered) / metered * 100.0 if metered else None
+    return res
+
+
+def write_csv(path: Path, rows: list[dict[str, Any]]) -> None:
+    with path.open("w", newline="", encoding="utf-8") as f:
+        w = csv.DictWriter(f, fieldnames=list(CSV_COLUMNS))
+        w.writeheader()
+        w.writerows(rows)
+
+
+def plot(path: Path, rows: list[dict[str, Any]], title: str) -> None:
+    """Predicted against measured end speed (km/h), per model, with 2 sigma bars."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6.4, 5.6))
+    colours = {"train_file": "tab:red", "causal": "tab:blue", "given": "tab:green"}
+    lo, hi = math.inf, -math.inf
+    for model in MODELS:
+        rs = [r for r in rows if r["model"] == model]
+        if not rs:
+            continue
+        x = np.array([r["measured_end_speed_kmh"] for r in rs])
+        y = np.array([r["predicted_end_speed_kmh"] for r in rs])
+        e = 2.0 * np.array([r["predicted_end_speed_sigma_kmh"] for r in rs])
+        ax.errorbar(x, y, yerr=e, fmt="o", ms=4, capsize=2, color=colours[model], label=f"{model} (2 sigma)")
+        lo, hi = min(lo, x.min(), y.min()), max(hi, x.max(), y.max())
+    if math.isfinite(lo):
+        ax.plot([lo - 2, hi + 2], [lo - 2, hi + 2], "k--", lw=0.8, label="predicted = measured")
+        ax.legend()
+    else:
+        ax.text(0.5, 0.5, "no coast", ha="center", va="center", transform=ax.transAxes)
+    ax.set_xlabel("measured end speed of the coast (km/h)")
+    ax.set_ylabel("predicted end speed (km/h)")
+    ax.set_title(title, fontsize=9)
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
