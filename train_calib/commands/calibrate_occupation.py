@@ -160,10 +160,11 @@ def run(args: argparse.Namespace) -> int:
                 results,
                 fleet.fits[comp],
                 types[comp].defaults,
+                truth,
             )
     plots.length_figure(out / "plots" / "lengths.png", fleet.lengths, types)
     if any(fleet.calibrated(c) for c in types.names):
-        plots.ranges_figure(out / "plots" / "ranges.png", {c: fleet.calibrated(c) for c in types.names}, types)
+        plots.ranges_figure(out / "plots" / "ranges.png", {c: fleet.calibrated(c) for c in types.names}, types, truth)
 
     data = report.summary(fleet, types, truth)
     if args.robustness > 0:

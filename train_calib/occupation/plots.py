@@ -6,7 +6,9 @@
   with the density of the best-fitting distribution, its parameters, KS statistic and p-value.
 - :func:`length_figure`: Fig. 6: the length interval of every run for each delta, coloured by the
   composition assigned, with the composition lengths.
-- :func:`ranges_figure`: Fig. 10: calibrated ranges per composition with the defaults.
+- :func:`ranges_figure`: Fig. 10: calibrated ranges per composition with the defaults and the search bounds.
+
+With the simulated truth (truth.csv), the distributions and the ranges show the true values of the same runs.
 """
 
 from __future__ import annotations
@@ -112,33 +114,71 @@ def run_figure(path: Path, track: Track, obs: Observations, result: CalibrationR
     return path
 
 
-def distribution_figure(
-    path: Path,
+def true_values(
+    results: Sequence[CalibrationResult], truth: Mapping[str, Mapping[str, float | str]] | None, name: str
+) -> np.ndarray:
+    """The true ``name`` of each of ``results``' runs that truth.csv has (finite values only; empty without truth)."""
+    if not truth:
+        return np.zeros(0)
+    values = [truth[r.run_id].get(name, np.nan) for r in results if r.run_id in truth]
+    x = np.array([v for v in values if isinstance(v, (int, float))], dtype=float)
+    return x[np.isfinite(x)]
+
+
+def build_distribution_figure(
     composition: str,
     results: Sequence[CalibrationResult],
     fits: Mapping[str, Sequence[FitResult]],
     defaults: Mapping[str, float] | None = None,
-) -> Path:
-    """Figs. 7-9: histograms with the best-fitting density per parameter."""
-    fig, axes = plt.subplots(2, 3, figsize=(13, 7))
+    truth: Mapping[str, Mapping[str, float | str]] | None = None,
+):
+    """Figs. 7-9 for one composition: per calibrated parameter the histogram of the runs' values (density, 1/unit)
+    with the best-fitting density, the default (gold) and, with ``truth`` (truth.csv by run id), the true values of
+    the same runs (green step histogram) and their median (green dashed line). Returns (figure, 2x3 axes)."""
+    fig, axes = plt.subplots(2, 3, figsize=(13, 7.5))
     for ax, name in zip(axes.ravel(), DECISION_NAMES):
         x = np.array([r.params[name] for r in results])
-        ax.hist(x, bins=max(5, min(20, x.size // 3)), density=True, color="lightsteelblue", edgecolor="steelblue")
+        bins = np.histogram_bin_edges(x, bins=max(5, min(20, x.size // 3)))
+        ax.hist(x, bins=bins, density=True, color="lightsteelblue", edgecolor="steelblue", label="calibrated runs")
         ranked = fits.get(name, [])
         if ranked and ranked[0].ok:
             best = ranked[0]
             grid = np.linspace(x.min() - 0.1 * np.ptp(x), x.max() + 0.1 * np.ptp(x), 400)
-            ax.plot(grid, best.frozen.pdf(grid), color="tab:red", lw=1.5)
+            ax.plot(grid, best.frozen.pdf(grid), color="tab:red", lw=1.5, label=f"fit: {best.name}")
             params = ", ".join(f"{k}={v:.3g}" for k, v in best.params.items())
             ax.set_title(f"{name}: {best.name}\n{params}\nKS {best.ks_statistic:.3f}, p {best.p_value:.2f}", fontsize=8)
         else:
             ax.set_title(f"{name}: no fit", fontsize=8)
         if defaults and name in defaults:
             ax.axvline(defaults[name], color="gold", lw=2, label="default")
-            ax.legend(fontsize=7)
+        true = true_values(results, truth, name)
+        if true.size:
+            spread = np.ptp(true) > 0
+            if spread:
+                inside = true.min() >= bins[0] and true.max() <= bins[-1]
+                ax.hist(true, bins=bins if inside else 10, density=True, histtype="step", color="tab:green", lw=1.3,
+                        label=f"truth ({true.size} runs)", gid="truth")  # fmt: skip
+            ax.axvline(float(np.median(true)), color="tab:green", ls="--", lw=1.5, gid="truth_median",
+                       label="true median" if spread else f"truth ({true.size} runs)")  # fmt: skip
         ax.set_xlabel(f"{name} ({UNITS[name]})")
-    fig.suptitle(f"{composition}: {len(results)} calibrated runs", fontsize=11)
+        ax.set_ylabel(f"density (1/({UNITS[name]}))" if UNITS[name] != "-" else "density")
+        ax.legend(fontsize=6, loc="upper left", bbox_to_anchor=(0.0, -0.2), ncol=2, framealpha=0.9)
+    title = f"{composition}: {len(results)} calibrated runs"
+    fig.suptitle(title + (" (green: simulated truth)" if truth else ""), fontsize=11)
     fig.tight_layout()
+    return fig, axes
+
+
+def distribution_figure(
+    path: Path,
+    composition: str,
+    results: Sequence[CalibrationResult],
+    fits: Mapping[str, Sequence[FitResult]],
+    defaults: Mapping[str, float] | None = None,
+    truth: Mapping[str, Mapping[str, float | str]] | None = None,
+) -> Path:
+    """Figs. 7-9: histograms with the best-fitting density per parameter (``build_distribution_figure``)."""
+    fig, _ = build_distribution_figure(composition, results, fits, defaults, truth)
     fig.savefig(path, dpi=100)
     plt.close(fig)
     return path
@@ -169,9 +209,18 @@ def length_figure(path: Path, lengths: Mapping[float, Sequence[LengthEstimate]],
     return path
 
 
-def ranges_figure(path: Path, results_by_comp: Mapping[str, Sequence[CalibrationResult]], types: TrainTypes) -> Path:
-    """Fig. 10: calibrated ranges (min-max, quartiles, median) per composition, defaults as yellow dots."""
-    fig, axes = plt.subplots(2, 3, figsize=(13, 7))
+def build_ranges_figure(
+    results_by_comp: Mapping[str, Sequence[CalibrationResult]],
+    types: TrainTypes,
+    truth: Mapping[str, Mapping[str, float | str]] | None = None,
+):
+    """Fig. 10: per parameter and composition the calibrated range (line: min-max, bar: quartiles, white: median),
+    the default (gold dot), the search bounds of the calibration (red bracket ends, the composition's ``bounds``)
+    and, with ``truth``, the true values' range of the same runs (green, beside the bar, dot at the median).
+    The y axis is the parameter in its unit. Returns (figure, 2x3 axes)."""
+    from matplotlib.lines import Line2D
+
+    fig, axes = plt.subplots(2, 3, figsize=(13, 7.5))
     comps = [c for c in types.names if results_by_comp.get(c)]
     for ax, name in zip(axes.ravel(), DECISION_NAMES):
         for i, comp in enumerate(comps):
@@ -181,11 +230,39 @@ def ranges_figure(path: Path, results_by_comp: Mapping[str, Sequence[Calibration
             ax.plot([i, i], [q1, q3], color="steelblue", lw=6, solid_capstyle="butt")
             ax.plot([i], [med], "_", color="white", ms=10)
             ax.plot([i], [types[comp].defaults[name]], "o", color="gold", mec="k", ms=7)
+            low, high = types[comp].bounds[name]
+            ax.plot([i - 0.3, i + 0.3], [low, low], color="tab:red", lw=1.5, gid="bound")
+            ax.plot([i - 0.3, i + 0.3], [high, high], color="tab:red", lw=1.5, gid="bound")
+            true = true_values(results_by_comp[comp], truth, name)
+            if true.size:
+                ax.plot([i + 0.18, i + 0.18], [true.min(), true.max()], color="tab:green", lw=3, gid="truth")
+                ax.plot([i + 0.18], [float(np.median(true))], "o", color="tab:green", mec="k", ms=5)
         ax.set_xticks(range(len(comps)), comps, fontsize=8)
-        ax.set_title(f"{name} ({UNITS[name]})", fontsize=9)
+        ax.set_title(name, fontsize=9)
+        ax.set_ylabel(f"{name} ({UNITS[name]})", fontsize=8)
         ax.set_xlim(-0.5, len(comps) - 0.5)
-    fig.suptitle("Calibrated parameters per composition (bars: quartiles, lines: range, dots: defaults)", fontsize=11)
-    fig.tight_layout()
+    handles = [
+        Line2D([], [], color="k", lw=1, label="calibrated range"),
+        Line2D([], [], color="steelblue", lw=6, label="quartiles"),
+        Line2D([], [], marker="o", color="gold", mec="k", ls="", label="default"),
+        Line2D([], [], color="tab:red", lw=1.5, label="search bounds"),
+    ]
+    if truth:
+        handles.append(Line2D([], [], color="tab:green", lw=3, marker="o", mec="k", label="truth: range, median"))
+    fig.suptitle("Calibrated parameters per composition (Fig. 10)", fontsize=11)
+    fig.legend(handles=handles, loc="lower center", ncol=len(handles), fontsize=8, frameon=False)
+    fig.tight_layout(rect=(0, 0.05, 1, 1))
+    return fig, axes
+
+
+def ranges_figure(
+    path: Path,
+    results_by_comp: Mapping[str, Sequence[CalibrationResult]],
+    types: TrainTypes,
+    truth: Mapping[str, Mapping[str, float | str]] | None = None,
+) -> Path:
+    """Fig. 10 (``build_ranges_figure``) to ``path``."""
+    fig, _ = build_ranges_figure(results_by_comp, types, truth)
     fig.savefig(path, dpi=100)
     plt.close(fig)
     return path
