@@ -14,6 +14,7 @@ NODES = [
     "regime_node",
     "feature_node",
     "window_calib_node",
+    "prediction_node",
 ]
 
 

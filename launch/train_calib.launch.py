@@ -11,6 +11,7 @@ Arguments (``name:=value``):
                  config/ukf_paper.yaml: Table 1) or converging (adds config/ukf_converging.yaml), for ukf_node,
                  after params_file
   namespace      namespace of the nodes (default none)
+  prediction     true: also start prediction_node (/train_calib/prediction, docs/prediction.md; default false)
 
 ``describe()`` gives the same graph as plain data without importing ``launch`` (used by the tests).
 """
@@ -22,10 +23,12 @@ from pathlib import Path
 PACKAGE = "train_calib"
 GRAPH = ("gnss_speed_node", "ukf_node", "regime_node", "feature_node")
 OPTIONAL = ("window_calib_node",)
+PREDICTION = ("prediction_node",)
 FILE_PARAMETERS = {
     "gnss_speed_node": ("track_file", "train_file"),
     "ukf_node": ("train_file",),
     "window_calib_node": ("train_file",),
+    "prediction_node": ("track_file", "train_file"),
 }
 ARGUMENTS = {
     "params_file": ("", "ROS 2 params file for every node (empty: the package's config/train_calib.yaml)"),
@@ -40,6 +43,7 @@ ARGUMENTS = {
         "(ukf_converging.yaml)",
     ),
     "namespace": ("", "namespace of the nodes"),
+    "prediction": ("false", "start prediction_node (/train_calib/prediction)"),
 }
 UKF_PRESETS = ("learning", "paper", "converging")
 TRUE = ("true", "1", "yes", "on")
@@ -88,6 +92,7 @@ def describe(
     namespace: str = "",
     traction_power: bool | str = False,
     ukf_preset: str = "learning",
+    prediction: bool | str = False,
 ) -> list[dict]:
     """The nodes to start, as plain data: package, executable, name, namespace, parameters (files in order,
     then the overrides). window None / "auto": window_calib_node when traction_power is true."""
@@ -97,7 +102,7 @@ def describe(
     if ukf_preset not in UKF_PRESETS:
         raise ValueError(f"launch argument ukf_preset: {ukf_preset!r} is not one of {', '.join(UKF_PRESETS)}")
     nodes = []
-    for name in GRAPH + (OPTIONAL if run_window else ()):
+    for name in GRAPH + (OPTIONAL if run_window else ()) + (PREDICTION if flag("prediction", prediction) else ()):
         overrides: dict = {"use_sim_time": flag("use_sim_time", use_sim_time)}
         for key in FILE_PARAMETERS.get(name, ()):
             value = track if key == "track_file" else train
@@ -134,6 +139,7 @@ def _nodes(context):
         namespace=arg("namespace"),
         traction_power=arg("traction_power"),
         ukf_preset=arg("ukf_preset"),
+        prediction=arg("prediction"),
     )
     return [
         Node(

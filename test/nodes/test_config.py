@@ -106,7 +106,8 @@ def test_launch_file_imports_and_describes_the_graph():
     assert nodes[0]["parameters"][1] == {"use_sim_time": True, "track_file": "tunnel_line_37km", "train_file": "virm4"}
     assert [n["name"] for n in launch.describe(window=True)][-1] == "window_calib_node"
     assert set(launch.ARGUMENTS) == {
-        "params_file", "track", "train", "use_sim_time", "window", "traction_power", "ukf_preset", "namespace"
+        "params_file", "track", "train", "use_sim_time", "window", "traction_power", "ukf_preset", "namespace",
+        "prediction",
     }  # fmt: skip
     # window: auto (the launch default) follows traction_power; true/false force it
     defaults = {name: default for name, (default, _) in launch.ARGUMENTS.items()}

@@ -23,6 +23,7 @@ from ..estimation.config import FeatureConfig, RegimeConfig, UKFConfig
 from ..estimation.safeguards import SafeguardConfig
 from ..ingest import IngestConfig
 from ..params import ParamSet, ParamSpec, param
+from ..prediction.predictor import PredictionConfig
 from ..window.config import WindowConfig
 
 
@@ -85,6 +86,7 @@ RESISTANCE_TOPIC = "/train_calib/resistance"
 REGIME_TOPIC = "/train_calib/regime"
 FEATURES_TOPIC = "/train_calib/features"
 WINDOW_TOPIC = "/train_calib/window_resistance"
+PREDICTION_TOPIC = "/train_calib/prediction"
 
 NODE_PARAMS: dict[str, tuple[type[ParamSet], ...]] = {
     "gnss_speed_node": (NodeConfig, TrackTrainFiles, IngestConfig),
@@ -92,6 +94,7 @@ NODE_PARAMS: dict[str, tuple[type[ParamSet], ...]] = {
     "regime_node": (NodeConfig, RegimeConfig),
     "feature_node": (NodeConfig, FeatureConfig),
     "window_calib_node": (NodeConfig, TrainFile, WindowConfig),
+    "prediction_node": (NodeConfig, TrackTrainFiles, PredictionConfig),
 }
 """Node name -> the ParamSets whose fields it declares as ROS parameters (in this order)."""
 
@@ -225,6 +228,7 @@ __all__ = [
     "GRAPH_NODES",
     "MEASUREMENT_TOPIC",
     "NODE_PARAMS",
+    "PREDICTION_TOPIC",
     "REGIME_TOPIC",
     "RESISTANCE_TOPIC",
     "WINDOW_NODE",

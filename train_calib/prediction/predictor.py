@@ -30,7 +30,7 @@ from .nominal import NominalLeg, nominal_time
 class PredictionConfig(ParamSet):
     """Coasting and nominal-strategy predictions from the current estimate (docs/prediction.md)."""
 
-    coast_step_m: float = param(800.0, "largest step of the coasting integration (RK4 over distance)", unit="m",
+    coast_step: float = param(800.0, "largest step of the coasting integration (RK4 over distance)", unit="m",
                                 low=1.0, high=5000.0)  # fmt: skip
     coast_max_steps: int = param(40, "most steps of one coasting integration (longer ones take longer steps)",
                                  low=4, high=100000)  # fmt: skip
@@ -141,7 +141,7 @@ class Predictor:
         file_cov[1:, 1:] = self.file_cov
         models = [(np.concatenate(([v_ms], r)), cal_cov), (np.concatenate(([v_ms], self.file_r)), file_cov)]
         results = coast_with_sigma(self.terms, self.G, float(s_m), models, tgt, tunnel_factor=self.train.tunnel_factor,
-                                   ds_max_m=c.coast_step_m, max_steps=c.coast_max_steps)  # fmt: skip
+                                   ds_max_m=c.coast_step, max_steps=c.coast_max_steps)  # fmt: skip
         for model, (v, vs, t, ts) in zip((out.calibrated, out.train_file), results):
             for j, k in enumerate(order):
                 values = (float(v[j]), float(vs[j]), float(t[j]), float(ts[j]))
