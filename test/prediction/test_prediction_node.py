@@ -125,4 +125,5 @@ def test_the_launch_file_starts_prediction_node_on_request():
     assert "prediction_node" not in [n["name"] for n in launch.describe()]
     nodes = launch.describe(prediction="true", track="tunnel_line_37km", train="icrm")
     assert nodes[-1]["name"] == nodes[-1]["executable"] == "prediction_node"
-    assert nodes[-1]["parameters"][-1] == {"use_sim_time": False, "track_file": "tunnel_line_37km", "train_file": "icrm"}
+    overrides = {"use_sim_time": False, "track_file": "tunnel_line_37km", "train_file": "icrm"}
+    assert nodes[-1]["parameters"][-1] == overrides

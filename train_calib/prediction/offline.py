@@ -170,14 +170,18 @@ class CoastStretch:
     causal_cov: np.ndarray
 
 
-def find_coasts(out: Any, min_duration_s: float) -> list[CoastStretch]:
-    """The coasts of a PipelineOutput (regimes COASTING, consecutive, one run, >= min_duration_s)."""
+def find_coasts(out: Any, min_duration_s: float, trim_end: int = 1) -> list[CoastStretch]:
+    """The coasts of a PipelineOutput (regimes COASTING, consecutive, one run, >= min_duration_s), each without its
+    last ``trim_end`` samples: the causal classifier sees a phase change up to a sample late, so the step into the
+    last coasting-labelled sample may already brake (at 10 s sampling: up to 2 km/h of the end speed)."""
     meas = {m.stamp_ns: m for m in out.measurements}
     est = {e.stamp_ns: e for e in out.estimates}
     coasts: list[CoastStretch] = []
     group: list[Any] = []
 
     def close() -> None:
+        if trim_end > 0:
+            del group[len(group) - trim_end :]
         if len(group) >= 2:
             a, b = group[0], group[-1]
             ma, mb, e = meas.get(a.stamp_ns), meas.get(b.stamp_ns), est.get(a.stamp_ns)
