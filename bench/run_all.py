@@ -94,6 +94,11 @@ BENCHES: tuple[Bench, ...] = (
           "soak.json",
           about="Simulated 1 Hz runs back to back (standstills, re-acquisitions) replayed at rate 0 through the "
                 "node graph in one process: memory flat, latency not growing, nothing lost."),
+    Bench("prediction", "9. Prediction per estimate (prediction_node)", "bench_prediction.py", (),
+          ("--stride", "5"), 600, "bench_prediction.json",
+          about="Issue 24: Predictor.predict + the Prediction message for every estimate of a bundled bag's replay "
+                "core (coasting to the next station and lower limit with sigma points for both models, the nominal "
+                "time for both); target under 5 ms per estimate at 1 Hz."),
 )  # fmt: skip
 
 
