@@ -14,11 +14,15 @@ Without traction power only coasting (u = 0) tells r: there a = -(r(v) + g(s)). 
    or says nothing). Traction and braking give an apparent r far outside the band.
 4. **Stretches**: runs of candidate steps, trimmed by W/2 at each end (the centred window smears a phase change
    over W/2), at least ``coast_min_duration``.
-5. **Equations**, one per chunk of ``coast_chunk`` s inside a stretch, integrated (no differentiation of the
-   speed): -(v_end - v_start)/T - mean(g) = r0 + r1 mean(v) + r2 mean(v^2 (1 + f_tun tunnel)), noise
-   2 sigma_v^2 / T^2 (chunks sharing an end point are correlated), plus a bias common to a coast with std
-   ``coast_stretch_std`` of r (grade and curve errors, a light traction or brake inside it): a coast counts as
-   one piece of evidence, not as its number of samples (stretches less than 2 W apart are one coast).
+5. **Equations**, one per sample of a stretch, the motion equation integrated from the stretch's start (no
+   differentiation of the speed): v_i + G_i = c - r0 (t_i - t_0) - r1 V1_i - r2 V2_i + n_i, with G, V1, V2 the
+   trapezoidal integrals of g, v and v^2 (1 + f_tun tunnel) since t_0, c the unknown speed at t_0 (eliminated by
+   centring the equations over the stretch) and n_i the speed noise, independent with variance sigma_v^2. Every
+   sample counts (a coast's deceleration from N samples has the standard error of a straight-line fit,
+   sigma_v sqrt(12 / N) / T, not the sqrt(2) sigma_v / T of its two end points). An error common to a coast, a
+   constant extra deceleration with std ``coast_stretch_std`` of r (grade and curve errors, a light traction or
+   brake inside it), adds b^2 tau tau^T (tau the centred time): a coast counts as one piece of evidence, not as its
+   number of samples (stretches less than 2 W apart are one coast).
 6. **Bayesian regression** from the prior N(train file, P0), P0 = s_c^2 r r^T + diag((s_j r_j)^2): a common scale
    (the whole curve 10-30 % off, ``prior_scale_std``) and per-coefficient jitter (``prior_coefficient_std``).
    Where no stretch is found the answer is the prior with the prior's covariance.
@@ -57,8 +61,7 @@ class CoastSettings:
     coast_window_min: float = 10.0
     coast_window_samples: float = 4.0
     coast_min_duration: float = 12.0
-    coast_chunk: float = 20.0
-    coast_stretch_std: float = 0.05
+    coast_stretch_std: float = 0.03
     coast_min_speed: float = 5.0
     use_power: bool = True
     power_coasting: bool = True
@@ -222,15 +225,16 @@ class RunArrays:
 
 @dataclass
 class Stretch:
-    """One coasting stretch used by the regression: samples k0..k1 of its arrays, and its equations."""
+    """One coasting stretch used by the regression: its samples' centred equations y = A r + noise (step 5)."""
 
     t_start: float  # s
     t_end: float  # s
     speed_min: float  # m/s
     speed_max: float  # m/s
-    H: np.ndarray  # (m, 3)
-    y: np.ndarray  # (m,) N/kg
-    R: np.ndarray  # (m, m) (N/kg)^2, the speed noise's
+    A: np.ndarray  # (n, 3) centred -(t - t0, integral of v, integral of v^2 (1 + f_tun tunnel)): s, m, m^2/s
+    y: np.ndarray  # (n,) centred v + integral of g, m/s
+    tau: np.ndarray  # (n,) centred time, s (the direction of an error common to the coast)
+    noise_var: float  # (m/s)^2, the speed noise's variance per sample
     bias_std: float  # N/kg, std of the error common to the coast
     run: int = 0
     group: int = 0  # stretches of one coast (split by a short gap) share their bias
@@ -334,37 +338,29 @@ def stretch_bounds(
     return out
 
 
+def _cumulative_trapezoid(y: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """Integral of y over t from t[0] to each t[i] (trapezoid), same length as t."""
+    out = np.zeros_like(y)
+    out[1:] = np.cumsum(0.5 * (y[1:] + y[:-1]) * np.diff(t))
+    return out
+
+
 def stretch_equations(
     arr: RunArrays, k0: int, k1: int, settings: CoastSettings, prior: np.ndarray, sigma_v: float, tunnel_factor: float
 ) -> Stretch:
-    """The chunk equations of samples k0..k1 (module docstring, step 5)."""
+    """The centred integrated equations of samples k0..k1 (module docstring, step 5)."""
     t, v = arr.t[k0 : k1 + 1], arr.v[k0 : k1 + 1]
     g, tun = arr.g[k0 : k1 + 1], arr.tunnel[k0 : k1 + 1]
-    cuts = [0]
-    chunk = settings.coast_chunk
-    while True:
-        nxt = int(np.searchsorted(t, t[cuts[-1]] + chunk - 1e-6))
-        if nxt >= t.size - 1 or t[-1] - t[nxt] < 0.5 * chunk:
-            if cuts[-1] != t.size - 1:
-                cuts.append(t.size - 1)
-            break
-        cuts.append(nxt)
-    m = len(cuts) - 1
-    H = np.empty((m, 3))
-    y = np.empty(m)
-    R = np.zeros((m, m))
-    durations = np.empty(m)
-    for e, (a, b) in enumerate(itertools.pairwise(cuts)):
-        tt, vv = t[a : b + 1], v[a : b + 1]
-        T = float(tt[-1] - tt[0])
-        durations[e] = T
-        H[e] = (1.0, np.trapezoid(vv, tt) / T, np.trapezoid(vv * vv * (1.0 + tunnel_factor * tun[a : b + 1]), tt) / T)
-        y[e] = -(vv[-1] - vv[0]) / T - np.trapezoid(g[a : b + 1], tt) / T
-        R[e, e] = 2.0 * sigma_v * sigma_v / (T * T)
-    for e in range(m - 1):  # neighbours share an end point
-        R[e, e + 1] = R[e + 1, e] = -sigma_v * sigma_v / (durations[e] * durations[e + 1])
-    bias = settings.coast_stretch_std * float(davis_value(prior, float(np.mean(H[:, 1]))))
-    return Stretch(float(t[0]), float(t[-1]), float(np.min(v)), float(np.max(v)), H, y, R, bias, int(arr.run[k0]))
+    phi = np.column_stack(
+        (t - t[0], _cumulative_trapezoid(v, t), _cumulative_trapezoid(v * v * (1.0 + tunnel_factor * tun), t))
+    )
+    y = v + _cumulative_trapezoid(g, t)
+    tau = t - np.mean(t)
+    bias = settings.coast_stretch_std * float(davis_value(prior, float(np.mean(v))))
+    return Stretch(
+        float(t[0]), float(t[-1]), float(np.min(v)), float(np.max(v)),
+        -(phi - phi.mean(axis=0)), y - np.mean(y), tau, sigma_v * sigma_v, bias, int(arr.run[k0]),
+    )  # fmt: skip
 
 
 def assign_group(stretch: Stretch, previous: Stretch | None, merge_gap: float) -> None:
@@ -389,18 +385,16 @@ def posterior(prior: np.ndarray, P0: np.ndarray, stretches: list[Stretch]) -> tu
     for st in stretches:
         groups.setdefault(st.group, []).append(st)
     for members in groups.values():
-        H = np.vstack([st.H for st in members])
+        A = np.vstack([st.A for st in members])
         y = np.concatenate([st.y for st in members])
-        R = np.zeros((y.size, y.size))
-        k = 0
-        for st in members:
-            m = st.y.size
-            R[k : k + m, k : k + m] = st.R
-            k += m
+        tau = np.concatenate([st.tau for st in members])
+        noise_var = max(st.noise_var for st in members)
         bias = max(st.bias_std for st in members)
-        Ri = np.linalg.inv(R + bias * bias)
-        info_matrix = info_matrix + H.T @ Ri @ H
-        info_vector = info_vector + H.T @ Ri @ y
+        # noise covariance noise_var I + bias^2 tau tau^T, inverted by Sherman-Morrison
+        gain = bias * bias / (noise_var + bias * bias * float(tau @ tau))
+        a_tau = A.T @ tau
+        info_matrix = info_matrix + (A.T @ A - gain * np.outer(a_tau, a_tau)) / noise_var
+        info_vector = info_vector + (A.T @ y - gain * a_tau * float(tau @ y)) / noise_var
     cov = np.linalg.inv(info_matrix)
     cov = 0.5 * (cov + cov.T)
     return cov @ info_vector, cov

@@ -197,11 +197,8 @@ class UKFConfig(ParamSet):
     coast_min_duration: float = param(
         12.0, "coast_regression: shortest stretch used, after trimming (and at least 3 periods)", unit="s", low=0.0
     )
-    coast_chunk: float = param(
-        20.0, "coast_regression: one equation per this much of a stretch", unit="s", low=1.0, high=3600.0
-    )
     coast_stretch_std: float = param(
-        0.05,
+        0.03,
         "coast_regression: std of an error common to a stretch, relative to r (grade, curves, light effort)",
         low=0.0,
         high=10.0,
