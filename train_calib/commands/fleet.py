@@ -36,17 +36,24 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--tls-ca-file", metavar="FILE", help="CA certificate (PEM) for --scheduler tls://")
     parser.add_argument("--tls-cert", metavar="FILE", help="client certificate (PEM) for --scheduler tls://")
     parser.add_argument("--tls-key", metavar="FILE", help="client private key (PEM) for --scheduler tls://")
+    parser.add_argument(
+        "--params-file",
+        metavar="FILE",
+        help="ROS 2 params file (the nodes' format, e.g. config/train_calib.yaml) applied to every run",
+    )
     parser.add_argument("--resume", action="store_true", help="reuse the rows already in DIR (same bag content)")
     parser.add_argument("--quiet", action="store_true", help="no progress bar, one line at the end")
 
 
 def run(args: argparse.Namespace) -> int:
     from ..fleet.manifest import read_manifest
+    from ..fleet.params import load_fleet_params
     from ..fleet.runner import Cluster, FleetError, run_fleet
 
     if args.workers is not None and args.workers < 1:
         raise FleetError(f"--workers: must be at least 1, found {args.workers}")
     rows = read_manifest(args.manifest)
+    params = load_fleet_params(args.params_file) if args.params_file else None
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         raise FleetError(f"--out: {out}: exists and is not a directory")
@@ -71,7 +78,7 @@ def run(args: argparse.Namespace) -> int:
             bar.set_postfix(ok=result.ok, error=result.errors, resumed=result.resumed, refresh=False)
 
     try:
-        result = run_fleet(rows, out, cluster, resume=args.resume, on_row=on_row)
+        result = run_fleet(rows, out, cluster, resume=args.resume, on_row=on_row, params=params)
     finally:
         if bar is not None:
             bar.close()
@@ -99,6 +106,8 @@ def finish(out: Path, result: Any, args: argparse.Namespace | None = None) -> di
     r80 = [u["r80"] for u in stats.units if math.isfinite(u["r80"])]
     totals: dict[str, Any] = {
         "manifest": str(Path(args.manifest).resolve()) if args is not None else None,
+        "params_file": str(Path(args.params_file).resolve()) if getattr(args, "params_file", None) else None,
+        "params_sha256": result.params_sha256 or None,
         "runs": result.total,
         "ok": result.ok,
         "errors": result.errors,

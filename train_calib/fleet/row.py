@@ -68,8 +68,9 @@ def file_sha256(path: Path, h: Any) -> None:
             h.update(chunk)
 
 
-def run_key(bag: str | Path, track: str | Path, train: str | Path) -> str:
-    """sha256 (hex) of the bag's content, the track's and the train's file contents and KEY_VERSION."""
+def run_key(bag: str | Path, track: str | Path, train: str | Path, params_sha256: str = "") -> str:
+    """sha256 (hex) of the bag's content, the track's and the train's file contents, KEY_VERSION and, with
+    ``--params-file``, the params file's sha256 (without one the key is as before params files existed)."""
     h = hashlib.sha256(KEY_VERSION.encode())
     bag = Path(bag)
     if not bag.exists():
@@ -83,6 +84,8 @@ def run_key(bag: str | Path, track: str | Path, train: str | Path) -> str:
     for tag, p in ((b"\0track\0", track), (b"\0train\0", train)):
         h.update(tag)
         file_sha256(Path(p), h)
+    if params_sha256:
+        h.update(b"\0params\0" + params_sha256.encode())
     return h.hexdigest()
 
 
@@ -110,13 +113,14 @@ def one_line(exc: BaseException) -> str:
 
 
 def process_run(job: dict[str, Any]) -> dict[str, Any]:
-    """A manifest row (``ManifestRow.columns()`` plus ``bag_path``, ``track_path``, ``train_path``) -> a
-    runs.parquet row (dict). Never raises: a failure is status "error" with a one-line reason."""
+    """A manifest row (``ManifestRow.columns()`` plus ``bag_path``, ``track_path``, ``train_path`` and, from
+    ``--params-file``, ``configs`` (Pipeline keyword -> ParamSet) and ``params_sha256``) -> a runs.parquet row
+    (dict). Never raises: a failure is status "error" with a one-line reason."""
     start = time.perf_counter()
     row = {name: job.get(name) for name in MANIFEST_COLUMNS} | empty_result()
     try:
-        row["run_key"] = run_key(job["bag_path"], job["track_path"], job["train_path"])
-        row |= run_result(job["bag_path"], job["track_path"], job["train_path"])
+        row["run_key"] = run_key(job["bag_path"], job["track_path"], job["train_path"], job.get("params_sha256", ""))
+        row |= run_result(job["bag_path"], job["track_path"], job["train_path"], job.get("configs"))
         row["status"] = "ok"
         row["error"] = ""
     except Exception as exc:  # any failure of one run is its row, the fleet goes on
@@ -131,13 +135,14 @@ def _finite(x: Any) -> float | None:
     return x if math.isfinite(x) else None
 
 
-def run_result(bag: str, track_path: str, train_path: str) -> dict[str, Any]:
-    """The estimates, features and counts of one bag (raises on a bad bag, track or train)."""
+def run_result(bag: str, track_path: str, train_path: str, configs: dict[str, Any] | None = None) -> dict[str, Any]:
+    """The estimates, features and counts of one bag (raises on a bad bag, track or train); ``configs``: the
+    :class:`pipeline.Pipeline` keyword configurations (None: the defaults, as ``replay`` without options)."""
     from ..pipeline import run_bag
 
     track = _cached("track", track_path)
     train = _cached("train", train_path)
-    out = run_bag(bag, track, train)
+    out = run_bag(bag, track, train, **(configs or {}))
     res: dict[str, Any] = {}
     stats = out.ingest_stats
     if stats is not None:

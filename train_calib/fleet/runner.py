@@ -34,10 +34,19 @@ import pyarrow.parquet as pq
 
 from ..errors import TrainCalibError
 from .manifest import ManifestRow
+from .params import FleetParams
 from .row import MANIFEST_COLUMNS, RUNS_SCHEMA, process_run, run_key
 
 RUNS = "runs.parquet"
 PARTS = "runs.parts"
+
+
+WORKER_CONFIG = {"distributed.worker.profile.enabled": False}
+"""Dask configuration of the local workers. Dask's statistical profiler samples every worker thread's stack each
+10 ms and keeps one call tree per 1 s cycle for the last ``distributed.admin.low-level-log-length`` (1000) cycles,
+twice (``profile_history``, ``profile_keys_history``): a worker running the pipeline grew by ~18 MB a minute for
+its first 1000 s (181 -> 347 MB in bench_fleet's 10,000 runs), then stayed there. Off here; on a ``dask worker``
+cluster, start the workers with ``DASK_DISTRIBUTED__WORKER__PROFILE__ENABLED=False`` (docs/fleet.md)."""
 
 
 class FleetError(TrainCalibError):
@@ -66,6 +75,7 @@ class FleetResult:
     workers: int = 0
     scheduler: str = ""
     worker_seconds: float = 0.0  # sum of the runs' processing times
+    params_sha256: str = ""  # of the --params-file, empty without one
     extra: dict[str, Any] = field(default_factory=dict)
 
 
@@ -113,15 +123,18 @@ def connect(cluster: Cluster) -> tuple[Any, Any]:
         except (OSError, TimeoutError) as exc:
             raise FleetError(f"--scheduler: {cluster.scheduler}: cannot connect ({exc})") from None
         return client, None
+    import dask
+
     workers = cluster.workers or os.cpu_count() or 1
-    local = LocalCluster(
-        n_workers=workers,
-        threads_per_worker=1,
-        processes=True,
-        host="127.0.0.1",
-        dashboard_address="127.0.0.1:0",  # its HTTP server on a free port of this host only
-        silence_logs=logging.ERROR,
-    )
+    with dask.config.set(WORKER_CONFIG):  # the nannies hand this config to their worker processes
+        local = LocalCluster(
+            n_workers=workers,
+            threads_per_worker=1,
+            processes=True,
+            host="127.0.0.1",
+            dashboard_address="127.0.0.1:0",  # its HTTP server on a free port of this host only
+            silence_logs=logging.ERROR,
+        )
     return Client(local, set_as_default=False), local
 
 
@@ -218,11 +231,13 @@ def run_fleet(
     on_row: Callable[[dict[str, Any], FleetResult], None] | None = None,
     client: Any = None,
     task: Callable[[dict[str, Any]], dict[str, Any]] = process_run,
+    params: FleetParams | None = None,
 ) -> FleetResult:
     """Every manifest row through :func:`process_run`, rows streamed to ``out/runs.parquet`` in manifest order.
     ``on_row(row, result)`` is called after each row is written (progress, tests). ``client``: an existing Dask
     client to use instead of connecting (tests). ``task``: what a worker runs per job (tests wrap
-    :func:`process_run` to hold a run; it must be importable on the workers)."""
+    :func:`process_run` to hold a run; it must be importable on the workers). ``params``: a checked
+    ``--params-file`` (:func:`params.load_fleet_params`), applied to every run and part of its key."""
     from distributed import as_completed
 
     if client is None:
@@ -241,6 +256,7 @@ def run_fleet(
 
     state: dict[str, Any] = {"client": client, "local": None, "pending": None}
     result.scheduler = cluster.scheduler or "local"
+    result.params_sha256 = params.sha256 if params is not None else ""
 
     def pending_set() -> Any:
         """The as_completed set, connecting on first use (a fully resumed fleet starts no cluster)."""
@@ -268,6 +284,8 @@ def run_fleet(
                 next_submit += 1
                 job = row.columns() | {"date_s": row.date_s, "bag_path": row.bag_path,
                                        "track_path": row.track_path, "train_path": row.train_path}  # fmt: skip
+                if params is not None and params.sha256:
+                    job |= {"configs": params.configs, "params_sha256": params.sha256}
                 if previous is not None and previous.where:
                     old = _reuse(previous, job)
                     if old is not None:
@@ -321,7 +339,7 @@ def run_fleet(
 
 def _reuse(previous: ResumeIndex, job: dict[str, Any]) -> dict[str, Any] | None:
     try:
-        key = run_key(job["bag_path"], job["track_path"], job["train_path"])
+        key = run_key(job["bag_path"], job["track_path"], job["train_path"], job.get("params_sha256", ""))
     except OSError:
         return None
     old = previous.row(key)
