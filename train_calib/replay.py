@@ -78,6 +78,26 @@ class Interrupted(Exception):
 REPLAY_MAX_REGIME_WAIT = 100000
 """window_calib_node's max_regime_wait in a replay (its upper bound): wait for every regime."""
 
+REPLAY_DIAGNOSTICS_PERIOD_S = 10.0
+"""The nodes' diagnostics_period in a replay (s of the bag's time) unless a params file sets one. Under sim time a
+node publishes /diagnostics once per period of its inputs' stamps (diagnostics_schedule), the same count at any
+rate; the on-board 1 s would put one status beside every sample of a 1 Hz bag and halve the graph's speed at rate 0
+(the demo bag: 4 nodes x about 160 statuses at 10 s, 1,300 s of data)."""
+
+
+def sets_parameter(params_files: Sequence[Path], name: str) -> bool:
+    """Whether any of the ROS params files sets ``name`` (under any node's ``ros__parameters``)."""
+
+    def found(node: Any) -> bool:
+        if isinstance(node, dict):
+            params = node.get("ros__parameters")
+            if isinstance(params, dict) and name in params:
+                return True
+            return any(found(v) for v in node.values())
+        return False
+
+    return any(found(load_yaml_mapping(f, "params file")) for f in params_files)
+
 
 @dataclass
 class ReplayOptions:
@@ -304,6 +324,8 @@ class Replay:
         # one, whatever the processes' scheduling (with --processes a measurement may run up to max_lag ahead of its
         # regime, more than the on-board max_regime_wait)
         overrides["max_regime_wait"] = REPLAY_MAX_REGIME_WAIT
+        if not sets_parameter(o.params_files, "diagnostics_period"):  # a rate-independent /diagnostics volume
+            overrides["diagnostics_period"] = REPLAY_DIAGNOSTICS_PERIOD_S
         self.node = rclpy.create_node("train_calib_replay", context=context)
         # the recorder follows /clock itself (sim_clock): a /clock it cannot read is counted, never fatal
         rec_node = rclpy.create_node("train_calib_recorder", context=context)

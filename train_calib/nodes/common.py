@@ -24,11 +24,13 @@ A node subclasses :class:`TrainCalibNode`, sets ``NODE_NAME`` (a key of ``config
 * **Drops.** ``self.drop(topic, reason)`` counts a dropped sample; ``self.set_drops(topic, counter)``
   mirrors a core object's counters (the ingest counts its own).
 * **Diagnostics.** ``/diagnostics`` (diagnostic_msgs/DiagnosticArray) every ``diagnostics_period`` of the
-  node clock: one DiagnosticStatus named after the node, ``hardware_id`` ``train_calib``; values: per
-  input topic the rate (Hz), received and dropped-by-reason counts; per output topic the published
-  count; then the node's ``diagnostic_values()``. Level WARN when an input seen before is silent for
-  longer than ``input_timeout``, or when the node's ``diagnostic_problems()`` reports one (e.g. the filter
-  health); ERROR for problems the node marks as errors.
+  node clock, under ``use_sim_time`` of the data's time (at most one per period of the inputs' stamps,
+  ``diagnostics_schedule``: the same count at any replay rate), and once more at the end: one
+  DiagnosticStatus named after the node, ``hardware_id`` ``train_calib``; values: per input topic the rate
+  (Hz), received and dropped-by-reason counts; per output topic the published count; then the node's
+  ``diagnostic_values()``. Level WARN when an input seen before is silent for longer than ``input_timeout``,
+  or when the node's ``diagnostic_problems()`` reports one (e.g. the filter health); ERROR for problems the
+  node marks as errors.
 * **End of input and shutdown.** ``end_of_input()`` (override; idempotent) releases what the node holds
   and closes the current run: called at shutdown, by the in-process replay at the end of a bag, and, with
   ``report_progress`` true, when a ``std_msgs/String`` naming the node (or ``*``) arrives on
@@ -93,6 +95,7 @@ from rclpy.serialization import deserialize_message
 from rclpy.signals import SignalHandlerOptions
 from std_msgs.msg import String
 
+from ..diagnostics_schedule import DiagnosticsSchedule
 from ..errors import ConfigError
 from ..params import ParamSet, ParamSpec
 from . import cdr
@@ -280,7 +283,10 @@ class TrainCalibNode(Node):
         self._finished = False
         self.diagnostics_published = 0
         self._diag_pub = self.create_publisher(DiagnosticArray, DIAGNOSTICS_TOPIC, DIAGNOSTICS_QOS)
-        self._diag_timer = self.create_timer(node_cfg.diagnostics_period, self.publish_diagnostics)
+        # the node clock's timer on board; under sim time the data's stamps (diagnostics_schedule: rate-independent)
+        self._diag_schedule: DiagnosticsSchedule | None = None
+        self._diag_timer = None
+        self._start_diagnostics(node_cfg.diagnostics_period)
         self._progress_pub = None
         if node_cfg.report_progress:  # replay control: progress out, end of input in
             self._eoi_sub = self.create_subscription(String, END_OF_INPUT_TOPIC, self._on_end_of_input, CONTROL_QOS)
@@ -357,9 +363,21 @@ class TrainCalibNode(Node):
         if candidates:
             self.on_parameters_changed(set(candidates))
         if NodeConfig in candidates:
+            self._start_diagnostics(self.config(NodeConfig).diagnostics_period)
+
+    def _start_diagnostics(self, period_s: float) -> None:
+        """/diagnostics every ``period_s``: a timer of the node clock, or under ``use_sim_time`` the data's time (a
+        DiagnosticsSchedule asked with each input's stamp; a sim-time timer fires once per jump of /clock, so its
+        count followed the replay rate)."""
+        if self._diag_timer is not None:
             self._diag_timer.cancel()
             self.destroy_timer(self._diag_timer)
-            self._diag_timer = self.create_timer(self.config(NodeConfig).diagnostics_period, self.publish_diagnostics)
+            self._diag_timer = None
+        if self.get_parameter("use_sim_time").value:
+            self._diag_schedule = DiagnosticsSchedule(period_s)
+        else:
+            self._diag_schedule = None
+            self._diag_timer = self.create_timer(period_s, self.publish_diagnostics)
 
     def check_config(self, cfg: ParamSet) -> str | None:
         """Node-specific check of a changed config (e.g. a station must exist); a reason refuses it."""
@@ -388,12 +406,19 @@ class TrainCalibNode(Node):
         def handler(data: bytes) -> None:
             received[topic] += 1
             rate.count += 1
+            msg = None
             try:
-                callback(decode(data))
+                msg = decode(data)
+                callback(msg)
             except Exception as exc:  # a bad sample or a core failure must not stop the node
                 drops[ERROR_REASON] += 1
                 logger.error(f"{topic}: sample dropped: {exc.__class__.__name__}: {exc}", throttle_duration_sec=5.0)
             handled[topic] += 1
+            schedule = self._diag_schedule
+            if schedule is not None and msg is not None:
+                stamp = msg.header.stamp
+                if schedule.due(stamp.sec * 1_000_000_000 + stamp.nanosec):
+                    self.publish_diagnostics()
             if self._progress_pub is not None:
                 self.publish_progress()
 
