@@ -26,6 +26,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--min-coast", type=float, default=30.0, metavar="S",
                         help="shortest coast predicted, s (default %(default)s)")  # fmt: skip
+    parser.add_argument("--edge-fit", type=float, default=30.0, metavar="S",
+                        help="start speed of a coast: a line through its measured speeds over its first S seconds; "
+                        "0: the first sample alone (default %(default)s)")  # fmt: skip
     parser.add_argument("--quiet", action="store_true", help="print nothing but errors")
 
 
@@ -49,8 +52,9 @@ def run(args: argparse.Namespace) -> int:
     from ..track import load_track
     from ..train import load_train
 
-    if not (math.isfinite(args.min_coast) and args.min_coast >= 0.0):
-        raise ResistanceSourceError(f"--min-coast: must be a non-negative number of seconds, found {args.min_coast}")
+    for option, value in (("--min-coast", args.min_coast), ("--edge-fit", args.edge_fit)):
+        if not (math.isfinite(value) and value >= 0.0):
+            raise ResistanceSourceError(f"{option}: must be a non-negative number of seconds, found {value}")
     track = load_track(paths.track_file(args.track))
     train = load_train(paths.train_file(args.train))
     given = resistance_source(args.resistance, train) if args.resistance is not None else None
@@ -61,7 +65,7 @@ def run(args: argparse.Namespace) -> int:
         raise ResistanceSourceError(f"--out {out_dir}: cannot create ({exc.strerror})") from None
     ukf = UKFConfig()
     output = run_bag(args.bag, track, train, ukf=ukf)
-    coasts = find_coasts(output, args.min_coast)
+    coasts = find_coasts(output, args.min_coast, edge_fit_s=args.edge_fit)
     rows = predict_coasts(coasts, track, train, given, ukf=ukf)
     write_csv(out_dir / "coasts.csv", rows)
     summary = {
@@ -69,6 +73,7 @@ def run(args: argparse.Namespace) -> int:
         "track": track.name,
         "train": train.name,
         "min_coast_s": args.min_coast,
+        "edge_fit_s": args.edge_fit,
         "coasts": len(coasts),
         "models": model_stats(rows),
         "models_coasts_2min": model_stats(rows, 120.0),
