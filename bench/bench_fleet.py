@@ -1,6 +1,7 @@
 """Benchmark of train-calib fleet: runs per second per core, 1 vs 2 workers, local (Dask) vs no Dask, peak memory.
 
-    .venv/bin/python bench/bench_fleet.py [--runs 40] [--memory-runs 10000] [--out build/bench_fleet]
+    .venv/bin/python bench/bench_fleet.py [--runs 40] [--memory-runs 10000] [--growth-runs 2000]
+        [--parts per_core,scaling,growth,memory] [--out build/bench_fleet]
 
 Bags: a simulated fleet on the 32 km intercity corridor (20-minute runs), at 10 s and at 1 Hz (GNSS and speed),
 written once to --out (2 units x 2 runs each; a manifest lists them again and again under other units and dates).
@@ -11,6 +12,9 @@ written once to --out (2 units x 2 runs each; a manifest lists them again and ag
   runs at 1 Hz: the ratio of the rates.
 - Local vs Dask: the serial loop (no Dask) against 1 Dask worker on the same runs: the overhead per run, and the
   rows compared (equal but for the timing column).
+- Worker growth: --growth-runs runs at 10 s through ``run_fleet`` on a LocalCluster of 1 worker, with Dask's
+  worker profiler on (Dask's default) and off (``runner.WORKER_CONFIG``, what the command uses): the worker's
+  resident memory (VmRSS after gc) sampled 8 times; growth in MB per 1000 runs and per 100 s.
 - Memory: --memory-runs runs at 10 s through ``train-calib fleet --workers 2 --quiet`` as a subprocess; peak RSS
   of the command's process and of its workers (getrusage of the children), against a run of a tenth as many.
 """
@@ -136,43 +140,102 @@ def memory(src: Path, n: int, out: Path) -> dict[str, float]:
             "worker_peak_mb": int(fields["RSS"][1]) / 1024}  # fmt: skip
 
 
+def _worker_rss_mb() -> float:
+    """This process's resident memory (MB) after a garbage collection (Linux /proc)."""
+    import gc
+
+    gc.collect()
+    for line in Path("/proc/self/status").read_text().splitlines():
+        if line.startswith("VmRSS:"):
+            return int(line.split()[1]) / 1024
+    return float("nan")
+
+
+def growth(src: Path, n: int, out: Path, profile: bool) -> dict[str, object]:
+    """Worker memory over n runs on a LocalCluster of 1 worker, Dask's profiler on or off."""
+    from train_calib.fleet import runner
+
+    rows = read_manifest(manifest(src, n, out / f"growth_{n}.csv"))
+    saved = runner.WORKER_CONFIG
+    runner.WORKER_CONFIG = {"distributed.worker.profile.enabled": profile}
+    try:
+        client, local = runner.connect(Cluster(workers=1))
+    finally:
+        runner.WORKER_CONFIG = saved
+    samples: list[tuple[int, float, float]] = []  # (runs done, seconds, MB)
+    t0 = time.perf_counter()
+
+    def on_row(row: dict, result: object) -> None:
+        done = result.ok + result.errors  # type: ignore[attr-defined]
+        if done % max(1, n // 8) == 0 or done == n:
+            mb = next(iter(client.run(_worker_rss_mb).values()))
+            samples.append((done, time.perf_counter() - t0, mb))
+
+    try:
+        run_fleet(rows, out / f"growth_{'on' if profile else 'off'}", Cluster(workers=1), client=client, on_row=on_row)
+    finally:
+        client.close()
+        local.close()
+    (r0, t_0, m0), (r1, t_1, m1) = samples[0], samples[-1]
+    return {"profiler": profile, "runs": n, "samples": samples, "first_mb": m0, "last_mb": m1,
+            "mb_per_1000_runs": 1000 * (m1 - m0) / (r1 - r0),
+            "mb_per_100_s": 100 * (m1 - m0) / (t_1 - t_0)}  # fmt: skip
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", type=Path, default=REPO / "build" / "bench_fleet")
     ap.add_argument("--runs", type=int, default=40, help="runs of the scaling and overhead measurements")
     ap.add_argument("--repeat", type=int, default=3, help="passes over the bags for the per-core rate")
     ap.add_argument("--memory-runs", type=int, default=10000, help="0 = skip the memory measurement")
+    ap.add_argument("--growth-runs", type=int, default=2000, help="runs of the worker growth measurement")
+    ap.add_argument("--parts", default="per_core,scaling,growth,memory", help="which measurements (comma list)")
     args = ap.parse_args()
+    parts = set(args.parts.split(","))
+    if parts - {"per_core", "scaling", "growth", "memory"}:
+        ap.error(f"--parts: unknown {', '.join(sorted(parts - {'per_core', 'scaling', 'growth', 'memory'}))}")
     args.out.mkdir(parents=True, exist_ok=True)
-    report: dict[str, object] = {"cores": os.cpu_count(), "load_average_at_start": os.getloadavg()}
+    report: dict[str, object] = {"cores": os.cpu_count(), "load_average_at_start": os.getloadavg(),
+                                 "parts": sorted(parts)}  # fmt: skip
     print(f"load average at start: {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
     src = {p: bags(args.out, p) for p in (10.0, 1.0)}
-    for p, m in src.items():
-        report[f"per_core_{p:g}s"] = r = per_core(m, args.repeat)
-        print(f"per core, {p:g} s: {r['runs_per_s_per_core']:.2f} runs/s ({1000 * r['seconds_per_run']:.0f} ms/run, "
-              f"decoding {100 * r['decode_share']:.0f} %, {r['samples']} samples)")  # fmt: skip
-    rows = read_manifest(manifest(src[1.0], args.runs, args.out / "scaling.csv"))
-    rate_serial, serial_path = serial(rows, args.out / "serial")
-    rate1, path1 = fleet_rate(rows, 1, args.out)
-    rate2, path2 = fleet_rate(rows, 2, args.out)
-    a = pd.read_parquet(serial_path).drop(columns=list(TIMING_COLUMNS))
-    same = all(a.equals(pd.read_parquet(p).drop(columns=list(TIMING_COLUMNS))) for p in (path1, path2))
-    report["scaling_1hz"] = {"runs": len(rows), "serial_runs_per_s": rate_serial, "dask1_runs_per_s": rate1,
-                             "dask2_runs_per_s": rate2, "speedup_2_vs_1": rate2 / rate1,
-                             "dask_overhead_ms_per_run": 1000 * (1 / rate1 - 1 / rate_serial),
-                             "rows_equal": same}  # fmt: skip
-    print(f"1 Hz, {len(rows)} runs: serial {rate_serial:.2f} runs/s, dask 1 worker {rate1:.2f}, 2 workers {rate2:.2f} "
-          f"(x{rate2 / rate1:.2f}); dask overhead {1000 * (1 / rate1 - 1 / rate_serial):+.1f} ms/run; "
-          f"rows equal: {same}")  # fmt: skip
-    r1 = report["per_core_1s"]["runs_per_s_per_core"]  # type: ignore[index]
-    eff = (rate2 / rate1) / 2
-    cores = RUNS_PER_YEAR / (r1 * eff * 3600.0)
-    report["year_in_an_hour_cores"] = cores
-    print(
-        f"a year of a 170-unit fleet ({RUNS_PER_YEAR} runs at 1 Hz) in an hour: {cores:.0f} cores "
-        f"(at {r1:.2f} runs/s per core and {100 * eff:.0f} % parallel efficiency)"
-    )
-    if args.memory_runs:
+    if "per_core" in parts:
+        for p, m in src.items():
+            report[f"per_core_{p:g}s"] = r = per_core(m, args.repeat)
+            print(f"per core, {p:g} s: {r['runs_per_s_per_core']:.2f} runs/s ({1000 * r['seconds_per_run']:.0f} "
+                  f"ms/run, decoding {100 * r['decode_share']:.0f} %, {r['samples']} samples)")  # fmt: skip
+    if "scaling" in parts:
+        rows = read_manifest(manifest(src[1.0], args.runs, args.out / "scaling.csv"))
+        rate_serial, serial_path = serial(rows, args.out / "serial")
+        rate1, path1 = fleet_rate(rows, 1, args.out)
+        rate2, path2 = fleet_rate(rows, 2, args.out)
+        a = pd.read_parquet(serial_path).drop(columns=list(TIMING_COLUMNS))
+        same = all(a.equals(pd.read_parquet(p).drop(columns=list(TIMING_COLUMNS))) for p in (path1, path2))
+        report["scaling_1hz"] = {"runs": len(rows), "serial_runs_per_s": rate_serial, "dask1_runs_per_s": rate1,
+                                 "dask2_runs_per_s": rate2, "speedup_2_vs_1": rate2 / rate1,
+                                 "dask_overhead_ms_per_run": 1000 * (1 / rate1 - 1 / rate_serial),
+                                 "rows_equal": same}  # fmt: skip
+        print(f"1 Hz, {len(rows)} runs: serial {rate_serial:.2f} runs/s, dask 1 worker {rate1:.2f}, 2 workers "
+              f"{rate2:.2f} (x{rate2 / rate1:.2f}); dask overhead {1000 * (1 / rate1 - 1 / rate_serial):+.1f} ms/run; "
+              f"rows equal: {same}")  # fmt: skip
+        if "per_core" in parts:
+            r1 = report["per_core_1s"]["runs_per_s_per_core"]  # type: ignore[index]
+            eff = (rate2 / rate1) / 2
+            cores = RUNS_PER_YEAR / (r1 * eff * 3600.0)
+            report["year_in_an_hour_cores"] = cores
+            print(
+                f"a year of a 170-unit fleet ({RUNS_PER_YEAR} runs at 1 Hz) in an hour: {cores:.0f} cores "
+                f"(at {r1:.2f} runs/s per core and {100 * eff:.0f} % parallel efficiency)"
+            )
+    if "growth" in parts and args.growth_runs:
+        for profile in (True, False):
+            report[f"growth_profiler_{'on' if profile else 'off'}"] = g = growth(
+                src[10.0], args.growth_runs, args.out, profile
+            )
+            print(f"worker memory, {g['runs']} runs at 10 s, 1 worker, Dask profiler {'on' if profile else 'off'}: "
+                  f"{g['first_mb']:.0f} -> {g['last_mb']:.0f} MB ({g['mb_per_1000_runs']:+.1f} MB per 1000 runs, "
+                  f"{g['mb_per_100_s']:+.1f} MB per 100 s)")  # fmt: skip
+    if "memory" in parts and args.memory_runs:
         for n in (args.memory_runs // 10, args.memory_runs):
             report[f"memory_{n}"] = m = memory(src[10.0], n, args.out)
             print(
@@ -181,7 +244,8 @@ def main() -> int:
             )
     report["load_average_at_end"] = os.getloadavg()
     print(f"load average at end: {os.getloadavg()[0]:.1f}")
-    (args.out / "bench_fleet.json").write_text(json.dumps(report, indent=1) + "\n")
+    name = "bench_fleet.json" if len(parts) == 4 else f"bench_fleet_{'_'.join(sorted(parts))}.json"
+    (args.out / name).write_text(json.dumps(report, indent=1) + "\n")
     return 0
 
 

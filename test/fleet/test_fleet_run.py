@@ -24,7 +24,7 @@ import pytest
 from train_calib.cli import main
 from train_calib.fleet.manifest import read_manifest
 from train_calib.fleet.row import RUNS_SCHEMA, TIMING_COLUMNS
-from train_calib.fleet.runner import Cluster, run_fleet
+from train_calib.fleet.runner import Cluster, connect, run_fleet
 from train_calib.fleet.simulate import FleetSpec, simulate_fleet
 
 SPEC = FleetSpec(units=6, faulty=2, runs_per_unit=8, seed=0)
@@ -256,6 +256,30 @@ def test_killed_worker_mid_run_loses_nothing(fleet: Path, dask_cluster: DaskClus
     with dask_cluster.client() as c:  # the nanny restarted the killed process: the cluster is whole again
         c.wait_for_workers(2, timeout=30)
         assert killed[0] not in c.run(os.getpid).values()
+
+
+def test_local_workers_keep_no_profile(fleet: Path, tmp_path: Path) -> None:
+    """Dask's worker profiler (a call tree per second, 1000 kept, twice) was the workers' memory growth
+    (bench_fleet: growth): the LocalCluster's workers run without it and keep no profile after runs."""
+    client, local = connect(Cluster(workers=1))
+    try:
+        rows = read_manifest(fleet / "prefix.csv")[: BAD_ROWS + 4]
+        time.sleep(1.5)  # longer than a profile cycle (1 s): a profiler would have kept one by now
+        result = run_fleet(rows, tmp_path, Cluster(workers=1), client=client)
+        assert result.ok == 4 and result.errors == BAD_ROWS
+        state = client.run(
+            lambda dask_worker: (
+                sorted(dask_worker.periodic_callbacks),
+                len(dask_worker.profile_history),
+                len(dask_worker.profile_keys_history),
+            )
+        )
+        ((callbacks, history, keys_history),) = state.values()
+    finally:
+        client.close()
+        local.close()
+    assert "profile" not in callbacks and "profile-cycle" not in callbacks and "heartbeat" in callbacks
+    assert history == keys_history == 0
 
 
 def make_tls(tmp: Path) -> tuple[str, str, str]:
