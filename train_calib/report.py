@@ -64,6 +64,10 @@ class ReportFigure:
     gap_spans_km: list[tuple[float, float]] = field(default_factory=list)
 
 
+def _plural(n: int, noun: str, suffix: str = "s") -> str:
+    return f"{n} {noun}{'' if n == 1 else suffix}"
+
+
 def _minutes(t: np.ndarray) -> np.ndarray:
     return np.asarray(t, dtype=float) / 60.0
 
@@ -245,9 +249,9 @@ def _speed_panel(ax, outputs: Outputs, t: np.ndarray, report: ReportFigure) -> N
         ax.plot(t, est["v"] * 3.6, color="red", lw=1.2, label="filtered")
     handles, labels = ax.get_legend_handles_labels()
     handles.append(Patch(color=TUNNEL_COLOUR, alpha=0.3))
-    labels.append(f"tunnel ({len(report.tunnel_spans_min)} passages)")
+    labels.append(_plural(len(report.tunnel_spans_min), "tunnel passage"))
     handles.append(Patch(**GAP_STYLE))
-    labels.append(f"GNSS gap ({len(report.gap_spans_min)}: position predicted)")
+    labels.append(_plural(len(report.gap_spans_min), "GNSS gap") + " (position predicted)")
     ax.set_ylabel("speed (km/h)")
     ax.set_ylim(bottom=0)
     ax.legend(handles, labels, **LEGEND)
@@ -366,8 +370,8 @@ def _resistance_curve(ax, outputs: Outputs, train: TrainSpec, truth: dict | None
         final = np.array([est[c][-1] for c in COEFFS], dtype=float)
         _band(ax, v_kmh, final, outputs.last_r_covariance, "red", "on board, last message (+-2 sigma)")
     if best:
-        _band(ax, v_kmh, np.array([best[c] for c in COEFFS]), np.asarray(best["covariance"]), "tab:purple",
-              f"whole run, {best.get('coasting_stretches', 0)} coasting stretches (+-2 sigma)", "-.")  # fmt: skip
+        label = "whole run, " + _plural(best.get("coasting_stretches", 0), "coasting stretch", "es") + " (+-2 sigma)"
+        _band(ax, v_kmh, np.array([best[c] for c in COEFFS]), np.asarray(best["covariance"]), "tab:purple", label, "-.")
     _window_estimates(ax, outputs, v_kmh)
     if truth and all(c in truth for c in COEFFS):
         v = v_kmh / 3.6
