@@ -367,7 +367,10 @@ def plot(path: Path, rows: list[dict[str, Any]], title: str) -> None:
         x = np.array([r["measured_end_speed_kmh"] for r in rs])
         y = np.array([r["predicted_end_speed_kmh"] for r in rs])
         e = 2.0 * np.array([r["predicted_end_speed_sigma_kmh"] for r in rs])
-        ax.errorbar(x, y, yerr=e, fmt="o", ms=4, capsize=2, color=colours[model], label=f"{model} (2 sigma)")
+        style = {"train_file": ("s", 8, "none"), "causal": ("o", 4, colours[model]), "given": ("^", 5, colours[model])}
+        marker, size, face = style[model]
+        ax.errorbar(x, y, yerr=e, fmt=marker, ms=size, mfc=face, capsize=2, color=colours[model],
+                    label=f"{model} (2 sigma)")  # fmt: skip
         lo, hi = min(lo, x.min(), y.min()), max(hi, x.max(), y.max())
     if math.isfinite(lo):
         ax.plot([lo - 2, hi + 2], [lo - 2, hi + 2], "k--", lw=0.8, label="predicted = measured")
