@@ -416,8 +416,8 @@ class TrainCalibNode(Node):
             handled[topic] += 1
             schedule = self._diag_schedule
             if schedule is not None and msg is not None:
-                stamp = msg.header.stamp
-                if schedule.due(stamp.sec * 1_000_000_000 + stamp.nanosec):
+                stamp = getattr(getattr(msg, "header", None), "stamp", None)  # every input has a header; be safe
+                if stamp is not None and schedule.due(stamp.sec * 1_000_000_000 + stamp.nanosec):
                     self.publish_diagnostics()
             if self._progress_pub is not None:
                 self.publish_progress()
