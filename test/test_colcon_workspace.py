@@ -30,7 +30,7 @@ pytestmark = [pytest.mark.slow, pytest.mark.ros]
 
 VENV = Path(sys.prefix)
 SECTION = "## Building in a ROS 2 colcon workspace"
-NODES = ("gnss_speed_node", "ukf_node", "regime_node", "feature_node", "window_calib_node")
+NODES = ("gnss_speed_node", "ukf_node", "regime_node", "feature_node", "window_calib_node", "prediction_node")
 START_TIMEOUT_S = 60.0
 STOP_TIMEOUT_S = 20.0
 
