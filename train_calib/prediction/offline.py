@@ -170,24 +170,25 @@ class CoastStretch:
     causal_cov: np.ndarray
 
 
-def edge_speed(t_s: np.ndarray, v_ms: np.ndarray, variance: float, at_start: bool, fit_s: float
+def edge_speed(t_s: np.ndarray, v_ms: np.ndarray, variance: float, at_start: bool, fit_s: float, degree: int = 1
                ) -> tuple[float, float]:  # fmt: skip
-    """The speed (m/s) at one end of a coast and its variance ((m/s)^2): a straight line through the coast's
-    measured speeds within ``fit_s`` of that end (at least 2 samples), evaluated at the end sample; its variance
-    from the samples' ``variance`` through the fit. fit_s 0: the end sample alone."""
+    """The speed (m/s) at one end of a coast and its variance ((m/s)^2): a polynomial of ``degree`` (1: a straight
+    line) through the coast's measured speeds within ``fit_s`` of that end (at least degree + 2 samples), evaluated
+    at the end sample; its variance from the samples' ``variance`` through the fit. fit_s 0: the end sample alone."""
     ref = t_s[0] if at_start else t_s[-1]
     sel = np.abs(t_s - ref) <= fit_s + 1e-6
-    if fit_s <= 0.0 or sel.sum() < 2:
+    if fit_s <= 0.0 or sel.sum() < degree + 2:
         return float(v_ms[0] if at_start else v_ms[-1]), variance
-    x, y = t_s[sel] - ref, v_ms[sel]
-    xm = x.mean()
-    sxx = float(np.sum((x - xm) ** 2))
-    slope = float(np.sum((x - xm) * (y - y.mean())) / sxx)
-    value = float(y.mean() - slope * xm)
-    return value, variance * (1.0 / x.size + xm * xm / sxx)
+    x, y = (t_s[sel] - ref) / max(fit_s, 1e-9), v_ms[sel]
+    A = np.vander(x, degree + 1, increasing=True)
+    coef, *_ = np.linalg.lstsq(A, y, rcond=None)
+    gain = np.linalg.solve(A.T @ A, np.eye(degree + 1)[:, 0])  # (A^T A)^-1 e0: the value at x = 0
+    return float(coef[0]), variance * float(gain[0])
 
 
-def find_coasts(out: Any, min_duration_s: float, trim_end: int = 1, edge_fit_s: float = 30.0) -> list[CoastStretch]:
+def find_coasts(
+    out: Any, min_duration_s: float, trim_end: int = 1, edge_fit_s: float = 30.0, edge_degree: int = 1
+) -> list[CoastStretch]:
     """The coasts of a PipelineOutput (regimes COASTING, consecutive, one run, >= min_duration_s), each without its
     last ``trim_end`` samples: the causal classifier sees a phase change up to a sample late, so the step into the
     last coasting-labelled sample may already brake (at 10 s sampling: up to 2 km/h of the end speed).
@@ -211,7 +212,7 @@ def find_coasts(out: Any, min_duration_s: float, trim_end: int = 1, edge_fit_s: 
             if dur >= min_duration_s and mb.s > ma.s:
                 t = np.array([(m.stamp_ns - ma.stamp_ns) * 1e-9 for m in ms])
                 v = np.array([m.v for m in ms])
-                v0, var0 = edge_speed(t, v, ma.v_variance, True, edge_fit_s)
+                v0, var0 = edge_speed(t, v, ma.v_variance, True, edge_fit_s, edge_degree)
                 v1, var1 = mb.v, mb.v_variance  # the end sample as measured
                 cov = np.asarray(e.covariance)
                 coasts.append(CoastStretch(ma.stamp_ns, ma.s, mb.s, v0, v1, var0, var1, dur,
