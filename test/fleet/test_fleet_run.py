@@ -260,13 +260,15 @@ def test_killed_worker_mid_run_loses_nothing(fleet: Path, dask_cluster: DaskClus
 
 def test_local_workers_keep_no_profile(fleet: Path, tmp_path: Path) -> None:
     """Dask's worker profiler (a call tree per second, 1000 kept, twice) was the workers' memory growth
-    (bench_fleet: growth): the LocalCluster's workers run without it and keep no profile after runs."""
+    (bench_fleet: growth): the LocalCluster's workers run without it and keep no profile after runs; the client
+    holds no future after the fleet."""
     client, local = connect(Cluster(workers=1))
     try:
         rows = read_manifest(fleet / "prefix.csv")[: BAD_ROWS + 4]
         time.sleep(1.5)  # longer than a profile cycle (1 s): a profiler would have kept one by now
         result = run_fleet(rows, tmp_path, Cluster(workers=1), client=client)
         assert result.ok == 4 and result.errors == BAD_ROWS
+        assert not client.futures  # every run's future released once its row is collected: nothing held back
         state = client.run(
             lambda dask_worker: (
                 sorted(dask_worker.periodic_callbacks),
