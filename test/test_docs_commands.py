@@ -86,6 +86,8 @@ def _block_commands(doc: Path) -> list[Command]:
             part: list[str] = []
             for word in [*words, "&&"]:
                 if word in ("&&", ";", "||"):
+                    while part and re.match(r"^[A-Z_][A-Z0-9_]*=", part[0]):  # VAR=value before a command
+                        part = part[1:]
                     if part and _is_command(part[0]):
                         out.append(Command(doc.relative_to(REPO).as_posix(), first_line + start, k, tuple(part)))
                     part = []
