@@ -37,6 +37,7 @@ from __future__ import annotations
 
 import itertools
 import math
+from collections import deque
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -413,9 +414,13 @@ def nonnegative(r: np.ndarray, cov: np.ndarray) -> np.ndarray:
 
 
 def _period(t: np.ndarray) -> float:
-    d = np.diff(t)
-    d = d[d > 0.0]
-    return float(np.median(d)) if d.size else 1.0
+    """Median sample interval (s) of the rising stamps; 1 s without one. The median of a Python sort (the same
+    value as numpy's median, at a tenth of its cost on the few dozen samples a causal detection holds)."""
+    d = sorted(x for x in np.diff(t).tolist() if x > 0.0)
+    n = len(d)
+    if not n:
+        return 1.0
+    return d[n // 2] if n % 2 else (d[n // 2 - 1] + d[n // 2]) / 2.0
 
 
 def detect(
@@ -509,8 +514,8 @@ class CoastRegression:
         self._tun: list[float] = []
         self._run: list[int] = []
         self._power: list[int] = []
-        self._d2: list[float] = []  # second differences of the moving speeds (noise estimate)
-        self._d3: list[float] = []  # third differences
+        self._d2: deque[float] = deque(maxlen=self.NOISE_SAMPLES)  # second differences of the moving speeds
+        self._d3: deque[float] = deque(maxlen=self.NOISE_SAMPLES)  # third differences (noise estimate)
         self._quantum = math.inf
         self._v_max = 0.0
         self._last_detect = -math.inf
@@ -555,12 +560,8 @@ class CoastRegression:
             if len(self._v) >= 2 and self._v[-1] > 5.0 and self._run[-1] == run_id == self._run[-2]:
                 self._d2.append(v - 2.0 * self._v[-1] + self._v[-2])
                 self._d2_seen += 1
-                if len(self._d2) > self.NOISE_SAMPLES:
-                    del self._d2[: len(self._d2) - self.NOISE_SAMPLES]
                 if len(self._v) >= 3 and self._run[-3] == run_id and self._v[-2] > 5.0:
                     self._d3.append(v - 3.0 * self._v[-1] + 3.0 * self._v[-2] - self._v[-3])
-                    if len(self._d3) > self.NOISE_SAMPLES:
-                        del self._d3[: len(self._d3) - self.NOISE_SAMPLES]
         self._t.append(t)
         self._v.append(v)
         self._g.append(g)
@@ -603,7 +604,7 @@ class CoastRegression:
         trim = 0.5 * window
         bounds = bounds_of(arr, by_speed, by_power, cfg, window, period)
         horizon = arr.t[-1] - 0.5 * window - trim  # older samples serve no stretch still open
-        pieces = self._new_pieces(arr, bounds, arr.t[-1] - 0.5 * window - period)
+        pieces = self._new_pieces(arr, bounds, arr.t[-1] - 0.5 * window - period, period)
         changed = False
         if pieces:
             for k0, k1 in pieces:
@@ -629,13 +630,12 @@ class CoastRegression:
         return changed
 
     def _new_pieces(
-        self, arr: RunArrays, bounds: list[tuple[int, int, int, int]], decided: float
+        self, arr: RunArrays, bounds: list[tuple[int, int, int, int]], decided: float, period: float
     ) -> list[tuple[int, int]]:
         """Sample ranges to add now: each stretch that is over (the step after its last candidate step is decided:
         before ``decided``, its slope window complete) and not used yet. A long coast is used when it is over:
         taking it in pieces while it lasts was tried and cost accuracy (tune half 1.9 -> 4.3 % median: the
         pieces cut the chunks elsewhere, and their ends are decided on shorter evidence)."""
-        period = _period(arr.t)
         min_duration = max(self.settings.coast_min_duration, 3.0 * period)
         out = []
         for k0, k1, _, j in bounds:
