@@ -45,6 +45,7 @@ IMPORT_KEYS: dict[str, tuple[str, ...]] = {
     "zstandard": ("python3-zstandard",),
     "lz4": ("python3-lz4",),
     "distributed": ("python3-distributed", "python3-dask"),  # dask.distributed; `dask scheduler`/`dask worker`
+    "dask": ("python3-dask",),  # dask.config (the workers' profiler off)
     "pyarrow": ("python3-pyarrow",),
     "tqdm": ("python3-tqdm",),
     # tests
