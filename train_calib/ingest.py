@@ -45,7 +45,6 @@ same result however the messages are scheduled):
 
 from __future__ import annotations
 
-import bisect
 import math
 from collections import Counter, deque
 from collections.abc import Callable, Iterable, Iterator
@@ -53,12 +52,12 @@ from dataclasses import dataclass, field, replace
 from typing import Any
 
 from .errors import ConfigError
-from .geodesy import WGS84_A, WGS84_E2
+from .geodesy import ScalarEnu
 from .measurement import Measurement
 from .odometry import BACKWARD, FORWARD, DelayEstimator, DirectionMonitor, Odometer
 from .params import ParamSet, param
-from .physics import GRAVITY, KMH
-from .track import Track
+from .physics import KMH
+from .track import ScalarTrackTerms, Track, WindowProjector
 from .train import TrainSpec
 
 NS = 1_000_000_000
@@ -244,129 +243,6 @@ class IngestConfig(ParamSet):
             )
 
 
-# -- scalar track terms (per sample: plain floats are ~20x faster than numpy on 0-d arrays) ---------------
-
-
-class _Piecewise:
-    """Scalar evaluation of a PiecewiseConstant with the same arithmetic (same floats) as its numpy methods."""
-
-    __slots__ = ("breaks", "cumulative", "last", "values")
-
-    def __init__(self, f: Any) -> None:
-        self.breaks = [float(x) for x in f.breaks]
-        self.values = [float(x) for x in f.values]
-        self.cumulative = [float(x) for x in f._cumulative]
-        self.last = len(self.breaks) - 1
-
-    def _index(self, s: float) -> int:
-        i = bisect.bisect_right(self.breaks, s) - 1
-        return 0 if i < 0 else self.last if i > self.last else i
-
-    def __call__(self, s: float) -> float:
-        return self.values[self._index(s)]
-
-    def integral(self, s: float) -> float:
-        i = self._index(s)
-        return self.cumulative[i] + self.values[i] * (s - self.breaks[i])
-
-    def mean_over(self, a: float, b: float) -> float:
-        if b - a > 1e-9:
-            breaks, values, cumulative, last = self.breaks, self.values, self.cumulative, self.last
-            i = bisect.bisect_right(breaks, b) - 1
-            i = 0 if i < 0 else last if i > last else i
-            j = bisect.bisect_right(breaks, a) - 1
-            j = 0 if j < 0 else last if j > last else j
-            return (cumulative[i] + values[i] * (b - breaks[i]) - (cumulative[j] + values[j] * (a - breaks[j]))) / (
-                b - a
-            )
-        return self(b)
-
-
-class _TrackTerms:
-    """g(s) over the train length, tunnel fraction and speed limit at one position (floats)."""
-
-    def __init__(self, track: Track, train_length_m: float) -> None:
-        self.length = float(train_length_m)
-        self.gradient = _Piecewise(track.gradient)
-        self.curvature = _Piecewise(track.curvature)
-        self.tunnel = _Piecewise(track.tunnel)
-        self.limit = _Piecewise(track.speed_limit)
-
-    def track_force(self, s: float) -> float:
-        a = s - self.length
-        return GRAVITY * (self.gradient.mean_over(a, s) + self.curvature.mean_over(a, s))
-
-    def tunnel_fraction(self, s: float) -> float:
-        f = self.tunnel.mean_over(s - self.length, s)
-        return 0.0 if f < 0.0 else 1.0 if f > 1.0 else f  # = min(max(f, 0), 1), without two builtin calls
-
-
-class _Segments:
-    """Projection onto the track polyline within a window of s, visiting only the segments overlapping it.
-
-    Same geometry as ``Track.project(e, n, s_min, s_max)``: the nearest point with s in the window, the
-    chainage interpolated linearly along each segment; plain floats (a window holds a few segments).
-    """
-
-    def __init__(self, track: Track) -> None:
-        self.s = [float(x) for x in track.geometry_s_m]
-        self.x = [float(x) for x in track.east_m]
-        self.y = [float(y) for y in track.north_m]
-        self.length = self.s[-1]
-        s, x, y = self.s, self.x, self.y
-        # per segment i (vertex i to i + 1): (s0, x0, y0, ds, dx, dy, max(|d|^2, 1e-12)), m and m^2
-        self._seg = []
-        for i in range(len(s) - 1):
-            dx, dy = x[i + 1] - x[i], y[i + 1] - y[i]
-            self._seg.append((s[i], x[i], y[i], s[i + 1] - s[i], dx, dy, max(dx * dx + dy * dy, 1e-12)))
-
-    def project(self, e: float, n: float, lo: float, hi: float) -> tuple[float, float]:
-        s = self.s
-        lo, hi = max(lo, s[0]), min(hi, self.length)
-        if hi < lo:  # the window lies beyond an end of the line: its nearest end
-            lo = hi = s[0] if hi < s[0] else self.length
-        segments = len(s) - 1
-        first = min(max(bisect.bisect_right(s, lo) - 1, 0), segments - 1)
-        stop = min(max(bisect.bisect_left(s, hi), first + 1), segments)
-        best_s, best_d = lo, math.inf
-        hypot = math.hypot
-        for s0, x0, y0, ds, dx, dy, len2 in self._seg[first:stop]:
-            t = ((e - x0) * dx + (n - y0) * dy) / len2
-            t = 0.0 if t < 0.0 else 1.0 if t > 1.0 else t  # = min(max(t, 0), 1)
-            si = s0 + t * ds
-            si = lo if si < lo else hi if si > hi else si  # = min(max(si, lo), hi) (lo <= hi)
-            f = (si - s0) / ds if ds > 0 else 0.0
-            d = hypot(x0 + f * dx - e, y0 + f * dy - n)
-            if d < best_d:
-                best_s, best_d = si, d
-        return best_s, best_d
-
-
-class _Enu:
-    """WGS84 -> the track's local east/north for one point (LocalFrame.to_enu with the rotation cached)."""
-
-    def __init__(self, track: Track) -> None:
-        from .geodesy import geodetic_to_ecef
-
-        frame = track.frame
-        self.rotation = frame._rotation
-        self.origin = geodetic_to_ecef(frame.lat0_deg, frame.lon0_deg)
-        self._ecef = geodetic_to_ecef
-        # the same numbers as plain floats (float64 either way; Python floats skip numpy's scalar overhead)
-        self._o = tuple(float(x) for x in self.origin)
-        self._r = tuple(tuple(float(x) for x in row) for row in self.rotation[:2])
-
-    def __call__(self, lat: float, lon: float) -> tuple[float, float]:
-        lat_r, lon_r = math.radians(lat), math.radians(lon)
-        sin_lat, cos_lat = math.sin(lat_r), math.cos(lat_r)
-        n = WGS84_A / math.sqrt(1.0 - WGS84_E2 * sin_lat * sin_lat)
-        o0, o1, o2 = self._o
-        d0, d1, d2 = (n * cos_lat * math.cos(lon_r) - o0, n * cos_lat * math.sin(lon_r) - o1,
-                      n * (1.0 - WGS84_E2) * sin_lat - o2)  # fmt: skip
-        (r00, r01, r02), (r10, r11, r12) = self._r
-        return r00 * d0 + r01 * d1 + r02 * d2, r10 * d0 + r11 * d1 + r12 * d2
-
-
 # -- input records (duck-typed converters from rclpy or rosbags messages below) -----------------------
 
 
@@ -472,9 +348,9 @@ class Ingest:
         self.config = config or IngestConfig()
         self._derive_ns(self.config)
         self._start_s = self._station_s(self.config)
-        self._terms = _TrackTerms(track, train.length_m)
-        self._enu = _Enu(track)
-        self._segments = _Segments(track)
+        self._terms = ScalarTrackTerms(track, train.length_m)
+        self._enu = ScalarEnu(track.frame)
+        self._segments = WindowProjector(track)
         self.stats = IngestStats()
         self.run_id = 0
         self._behind: list[tuple[str, Any, str]] = []  # samples behind the time base: a clock reset?
