@@ -58,6 +58,8 @@ REPAIR_REASONS: dict[str, str] = {
 
 @dataclass
 class GnssFix:
+    """A GNSS fix (sensor_msgs/NavSatFix); stamp in ns since the epoch."""
+
     stamp_ns: int
     lat: float  # deg
     lon: float  # deg
@@ -68,18 +70,23 @@ class GnssFix:
 
 @dataclass
 class SpeedSample:
+    """A speed sample (geometry_msgs/TwistStamped); stamp in ns since the epoch."""
+
     stamp_ns: int
     v: float  # m/s along the track
 
 
 @dataclass
 class PowerSample:
+    """A traction power sample (train_calib_msgs/TractionPower); stamp in ns since the epoch."""
+
     stamp_ns: int
     consumed: float  # W
     regenerated: float  # W
 
 
 def header_stamp_ns(msg: Any) -> int:
+    """A message's header stamp in ns since the epoch."""
     stamp = msg.header.stamp
     return int(stamp.sec) * NS + int(stamp.nanosec)
 
@@ -116,6 +123,8 @@ class MatchedFix:
 
 
 class Stamped(Protocol):
+    """Anything with a stamp in ns (the input records, MatchedFix)."""
+
     stamp_ns: int
 
 
