@@ -14,7 +14,7 @@ from ..track import ScalarTrackTerms, Track, WindowProjector
 from ..train import TrainSpec
 from .config import IngestConfig, Settings, start_position
 from .matching import MapMatcher
-from .odometer_checks import OdometerChecks
+from .odometer_checks import NO_CHANGE, OdometerChecks
 from .pairing import Pairer
 from .position import Anchor
 from .records import (
@@ -119,8 +119,9 @@ class Ingest:
     def add_fix(self, fix: GnssFix) -> list[Measurement]:
         self.stats.received[GNSS] += 1
         original = fix
-        if self.config.gnss_delay:
-            fix = replace(fix, stamp_ns=fix.stamp_ns - round(self.config.gnss_delay * NS))
+        delay = self.settings.config.gnss_delay
+        if delay:
+            fix = replace(fix, stamp_ns=fix.stamp_ns - round(delay * NS))
         reason, late = self.clock.check(GNSS, fix.stamp_ns, self.pairer.fix_stamps)
         reason = reason or fix_problem(fix) or self.matcher.match(fix, late)
         if reason is None:
@@ -130,7 +131,7 @@ class Ingest:
     def add_speed(self, sample: SpeedSample) -> list[Measurement]:
         self.stats.received[SPEED] += 1
         reason, late = self.clock.check(SPEED, sample.stamp_ns, self.pairer.speed_stamps)
-        reason = reason or speed_problem(sample, self.config.max_speed) or self._speed_step(sample, late)
+        reason = reason or speed_problem(sample, self.settings.config.max_speed) or self._speed_step(sample, late)
         if reason is None:
             self.pairer.add_speed(sample, late)
             if not late:
@@ -187,6 +188,8 @@ class Ingest:
 
     def _update_checks(self) -> None:
         changes = self.checks.update()
+        if changes is NO_CHANGE:
+            return
         self.stats.reversals += changes.reversals
         if changes.forward_again:
             self.runs.forward_again()

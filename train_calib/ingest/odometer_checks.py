@@ -60,12 +60,12 @@ class OdometerChecks:
     def update(self) -> DirectionChanges:
         """Feed the fixes the odometer has reached to the direction monitor and the delay estimator."""
         queue = self.queue
-        odometer, direction, delay = self.odometer, self.direction, self.delay
-        latest = odometer.latest_ns
-        if not (queue and latest is not None and queue[0].stamp_ns <= latest):
+        latest = self.odometer.latest_ns
+        if not queue or latest is None or queue[0].stamp_ns > latest:
             return NO_CHANGE
+        odometer, direction, delay = self.odometer, self.direction, self.delay
         reversals, forward_again = 0, False
-        while queue and latest is not None and queue[0].stamp_ns <= latest:
+        while queue and queue[0].stamp_ns <= latest:
             fix = queue.popleft()
             at = odometer.at(fix.stamp_ns)
             if at is None:
@@ -81,4 +81,4 @@ class OdometerChecks:
                     forward_again = True
             elif after == FORWARD:
                 delay.add(fix.stamp_ns, fix.s, d, v)
-        return DirectionChanges(reversals, forward_again)
+        return DirectionChanges(reversals, forward_again) if reversals or forward_again else NO_CHANGE

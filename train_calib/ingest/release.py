@@ -15,16 +15,6 @@ from .stats import IngestStats
 from .timebase import TimeBase
 
 
-class Position:
-    """Where the train is at a speed stamp: s (m), its variance (m^2), and the fix it was paired with (None:
-    dead-reckoned)."""
-
-    __slots__ = ("fix", "s", "variance")
-
-    def __init__(self, s: float, variance: float, fix: MatchedFix | None) -> None:
-        self.s, self.variance, self.fix = s, variance, fix
-
-
 class Releaser:
     """Makes the Measurement of a released speed sample, or counts why there is none (``reversing``,
     ``no_position``); every release advances the time base's release time and moves the anchor."""
@@ -56,18 +46,19 @@ class Releaser:
         if position is None:
             self.stats.drop(SPEED, NO_POSITION)
             return None
+        s, variance, fix = position
         # the measurement becomes the anchor for dead reckoning (from the fix itself when it has one)
-        self.anchor.at_measurement(t, position.s, v, position.fix)
-        if position.fix is None:
+        self.anchor.at_measurement(t, s, v, fix)
+        if fix is None:
             self.stats.dead_reckoned += 1
         run_id, dt = self.runs.segment(t, v)
-        m = self._measurement(t, v, position, run_id, dt)
+        m = self._measurement(t, s, v, variance, fix, run_id, dt)
         self.stats.published += 1
         return m
 
-    def _locate(self, t: int, v: float) -> Position | None:
-        """The position at t with speed v (within the line); None before the position is acquired or after
-        ``max_dead_reckoning``."""
+    def _locate(self, t: int, v: float) -> tuple[float, float, MatchedFix | None] | None:
+        """(s in m within the line, its variance in m^2, the fix it was paired with or None: dead-reckoned) at t
+        with speed v; None before the position is acquired or after ``max_dead_reckoning``."""
         cfg = self.settings.config
         fix = self.pairer.nearest_fix(t)
         if fix is not None:
@@ -81,13 +72,14 @@ class Releaser:
             s, s_var = reckoned
         length = self.track.length_m
         s = 0.0 if s < 0.0 else length if s > length else s  # = min(max(s, 0), length)
-        return Position(s, s_var, fix)
+        return s, s_var, fix
 
-    def _measurement(self, t: int, v: float, position: Position, run_id: int, dt: float) -> Measurement:
+    def _measurement(
+        self, t: int, s: float, v: float, variance: float, fix: MatchedFix | None, run_id: int, dt: float
+    ) -> Measurement:
         cfg = self.settings.config
         power = self.pairer.nearest_power(t)
         terms = self.terms
-        s, fix = position.s, position.fix
         return Measurement(  # positional, in field order: stamp_ns, s, v, track_force, dt, run_id, s_measured,
             t,  # s_variance, v_variance, cross_track, speed_limit, tunnel_fraction, power_valid, power_consumed,
             s,  # power_regenerated (a keyword call costs more, per sample)
@@ -96,7 +88,7 @@ class Releaser:
             dt,
             run_id,
             fix is not None,
-            position.variance,
+            variance,
             cfg.speed_std**2,
             fix.cross_track if fix is not None else 0.0,
             terms.limit(s),
