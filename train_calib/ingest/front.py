@@ -205,17 +205,19 @@ class Ingest:
         if reason in (STALE, OUT_OF_ORDER):
             if self._reset_watch.observe(stream, event, reason, self.clock):
                 return self._clock_reset()
-        elif reason != DUPLICATE:
+        elif reason != DUPLICATE and self._reset_watch.behind:
             self._reset_watch.clear()  # a sample of the current time base: no clock reset
         return self._release()
 
     def _release(self) -> list[Measurement]:
         out = []
-        pending, ready, release = self.pairer.pending, self.clock.ready, self.releaser.release
-        while pending and ready(pending[0].stamp_ns):
-            m = release(pending.popleft())
-            if m is not None:
-                out.append(m)
+        pending = self.pairer.pending
+        if pending:
+            ready, release = self.clock.ready, self.releaser.release
+            while pending and ready(pending[0].stamp_ns):
+                m = release(pending.popleft())
+                if m is not None:
+                    out.append(m)
         self.pairer.trim(self.clock)
         return out
 
