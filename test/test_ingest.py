@@ -366,6 +366,18 @@ def test_run_segmentation_new_run_at_a_departure_after_a_standstill(track, train
     assert all(m.dt == 1.0 for i, m in enumerate(out) if i and out[i - 1].run_id == m.run_id)
 
 
+def test_a_gap_at_standstill_starts_no_new_run(track, train):
+    """A run starts anew after a gap longer than run_gap only once it has moved: 400 s at a standstill is one run."""
+    ingest = Ingest(track, train)
+    out = []
+    for t in [*range(10), *range(410, 420)]:
+        out += ingest.add_fix(fix_at(track, float(t), 500.0))
+        out += ingest.add_speed(SpeedSample(T0 + t * NS, 0.0))
+    out += ingest.flush()
+    assert [m.run_id for m in out] == [0] * 20
+    assert out[10].dt == 401.0  # from 9 s to 410 s
+
+
 def test_power_is_paired_by_stamp(track, train):
     profile = Profile()
     ingest = Ingest(track, train)

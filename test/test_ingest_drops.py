@@ -183,3 +183,52 @@ def test_a_bag_loop_is_one_clock_reset_and_a_new_run_with_nothing_dropped(track,
     assert ingest.stats.received[SPEED] == 80 and ingest.stats.accepted[SPEED] == 80
     assert _runs(out) == [(0, 40), (1, 40)]
     assert [m.s for m in out[:40]] == [m.s for m in out[40:]]
+
+
+def test_a_stamp_seen_before_is_a_duplicate_even_when_it_is_not_the_latest(track, train):
+    ingest = Ingest(track, train)
+    for e in events(track, Profile(), until=10.0):
+        ingest.add(e)
+    ingest.add_speed(SpeedSample(T0 + 8 * NS, 1.0))  # 8 s was released: a duplicate, not out of order
+    assert dict(ingest.stats.dropped[SPEED]) == {"duplicate": 1}
+
+
+def _speed_step_run(track, train, speed, fix_from: tuple[int, int] | None = None):
+    """40-50 s at 1 Hz with max_acceleration 1 m/s^2: speed(k) in m/s; the fixes follow it (none in fix_from)."""
+    ingest = Ingest(track, train, IngestConfig(max_acceleration=1.0))
+    out, s = [], 200.0
+    for k in range(50 if fix_from is None else 40):
+        if fix_from is None or not fix_from[0] <= k < fix_from[1]:
+            out += ingest.add_fix(fix_at(track, float(k), s))
+        out += ingest.add_speed(SpeedSample(T0 + k * NS, speed(k)))
+        s += speed(k) if fix_from is None else 10.0
+    return ingest, out + ingest.flush()
+
+
+def test_a_new_speed_level_held_for_speed_step_time_is_accepted_with_its_earlier_samples(track, train):
+    """10 -> 25 m/s in 1 s (beyond 1 m/s^2), the fixes moving at 25 m/s: the new level is a speed_jump until it has
+    held for speed_step_time (10 s); then its 10 earlier samples are accepted too and their drops taken back."""
+    ingest, out = _speed_step_run(track, train, lambda k: 10.0 if k < 20 else 25.0)
+    assert ingest.stats.dropped[SPEED] == {} and ingest.stats.consecutive_dropped[SPEED] == 0
+    assert ingest.stats.accepted[SPEED] == 50 and ingest.stats.published == 50
+    assert [m.v for m in out[18:31]] == [10.0] * 2 + [25.0] * 11
+
+
+def test_a_slip_shorter_than_speed_step_time_stays_a_speed_jump_without_fixes_to_contradict_it(track, train):
+    """A 5 s wheel slip (25 m/s while the train runs at 10) in a GNSS gap: 5 speed_jump drops, nothing of it
+    published, although no fix contradicts it."""
+    ingest, out = _speed_step_run(track, train, lambda k: 25.0 if 20 <= k < 25 else 10.0, fix_from=(15, 30))
+    assert dict(ingest.stats.dropped[SPEED]) == {"speed_jump": 5}
+    assert ingest.stats.accepted[SPEED] == 35 and ingest.stats.published == 35
+    assert [(m.stamp_ns - T0) // NS for m in out[18:22]] == [18, 19, 25, 26] and {m.v for m in out} == {10.0}
+
+
+def test_a_speed_change_across_a_gap_longer_than_run_gap_is_no_speed_jump(track, train):
+    ingest = Ingest(track, train, IngestConfig(max_acceleration=0.01, run_gap=10.0))
+    out = []
+    for t, s, v in ((0, 500.0, 5.0), (20, 600.0, 10.0), (21, 610.0, 10.0)):
+        out += ingest.add_fix(fix_at(track, float(t), s))
+        out += ingest.add_speed(SpeedSample(T0 + t * NS, v))
+    out += ingest.flush()
+    assert ingest.stats.dropped[SPEED] == {}
+    assert [(m.v, m.run_id) for m in out] == [(5.0, 0), (10.0, 1), (10.0, 1)]
