@@ -270,6 +270,19 @@ def test_jumps_and_off_track_fixes_are_dropped_and_consistent_jumps_reacquire(tr
     assert out[0].s == pytest.approx(300.0, abs=1e-3) and out[0].s_measured
 
 
+@pytest.mark.parametrize("v, matched", [(5.0, True), (12.0, False)])
+def test_at_shunting_speed_the_window_also_covers_motion_against_the_track_direction(track, train, v, matched):
+    """After 20 s without samples the train is 20 v behind where it was: at or below reverse_max_speed (10 m/s)
+    the fix there is matched, above it the fix is a jump (and the position dead-reckoned forward)."""
+    ingest = Ingest(track, train)
+    out = ingest.add_fix(fix_at(track, 0.0, 1000.0)) + ingest.add_speed(SpeedSample(T0, v))
+    out += ingest.add_fix(fix_at(track, 20.0, 1000.0 - 20.0 * v)) + ingest.add_speed(SpeedSample(T0 + 20 * NS, v))
+    out += ingest.flush()
+    assert dict(ingest.stats.dropped[GNSS]) == ({} if matched else {"jump": 1})
+    assert [m.s_measured for m in out] == [True, matched]
+    assert out[1].s == pytest.approx(1000.0 - 20.0 * v if matched else 1000.0 + 20.0 * v, abs=1e-3)
+
+
 def test_reacquisition_after_a_gnss_gap_with_drifting_dead_reckoning(track, train):
     """A 100 s GNSS gap; the speed reads 2 % high, so the dead-reckoned position drifts ~30 m; the next fix
     is still matched (the window grew with the gap) and the position snaps back."""
@@ -364,6 +377,18 @@ def test_run_segmentation_new_run_at_a_departure_after_a_standstill(track, train
     first_of_run = [m for i, m in enumerate(out) if i == 0 or out[i - 1].run_id != m.run_id]
     assert [m.dt for m in first_of_run] == [0.0, 0.0, 0.0]
     assert all(m.dt == 1.0 for i, m in enumerate(out) if i and out[i - 1].run_id == m.run_id)
+
+
+def test_a_gap_at_standstill_starts_no_new_run(track, train):
+    """A run starts anew after a gap longer than run_gap only once it has moved: 400 s at a standstill is one run."""
+    ingest = Ingest(track, train)
+    out = []
+    for t in [*range(10), *range(410, 420)]:
+        out += ingest.add_fix(fix_at(track, float(t), 500.0))
+        out += ingest.add_speed(SpeedSample(T0 + t * NS, 0.0))
+    out += ingest.flush()
+    assert [m.run_id for m in out] == [0] * 20
+    assert out[10].dt == 401.0  # from 9 s to 410 s
 
 
 def test_power_is_paired_by_stamp(track, train):

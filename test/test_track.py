@@ -8,7 +8,7 @@ import yaml
 
 from train_calib.errors import ConfigError
 from train_calib.physics import GRAVITY
-from train_calib.track import load_track
+from train_calib.track import ScalarTrackTerms, WindowProjector, load_track
 
 
 @pytest.fixture
@@ -121,3 +121,28 @@ def test_unreadable_and_invalid_yaml(tmp_path):
     listy.write_text("- 1\n- 2\n")
     with pytest.raises(ConfigError, match="expected a mapping"):
         load_track(listy)
+
+
+def test_scalar_track_terms_are_the_track_functions_floats(track):
+    """The ingest's per-sample twin gives the numpy functions' floats exactly."""
+    terms = ScalarTrackTerms(track, 150.0)
+    for s in np.concatenate((np.linspace(-50.0, 3100.0, 127), [1200.0, 1350.0, 1600.0])):
+        s = float(s)
+        assert terms.track_force(s) == float(track.track_force(s, 150.0))
+        assert terms.tunnel_fraction(s) == float(track.tunnel_fraction(s, 150.0))
+        assert terms.limit(s) == float(track.speed_limit_at(s))
+
+
+def test_window_projector_agrees_with_track_project(track):
+    projector = WindowProjector(track)
+    rng = np.random.default_rng(5)
+    for s_true in np.linspace(0.0, 3000.0, 41):
+        east, north = track.enu_at(s_true)
+        e, n = float(east) + rng.uniform(-40.0, 40.0), float(north) + rng.uniform(-40.0, 40.0)
+        for lo, hi in ((s_true - 60.0, s_true + 60.0), (s_true + 200.0, s_true + 400.0), (-500.0, 4000.0)):
+            s, d = projector.project(e, n, lo, hi)
+            s_ref, d_ref = track.project(e, n, max(lo, 0.0), min(hi, track.length_m))
+            assert s == pytest.approx(s_ref, abs=1e-6) and d == pytest.approx(d_ref, abs=1e-6)
+    # a window beyond the end of the line: its nearest end
+    east, north = track.enu_at(2990.0)
+    assert projector.project(float(east), float(north), 3500.0, 3600.0)[0] == 3000.0

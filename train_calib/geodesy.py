@@ -7,6 +7,7 @@ ellipsoid; heights are ignored (rail GNSS altitude is not used).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -87,3 +88,23 @@ class LocalFrame:
             lat, lon, h = ecef_to_geodetic(ecef)
             up = up - h
         return lat, lon
+
+
+class ScalarEnu:
+    """WGS84 -> a LocalFrame's east/north (m) for one point in degrees: ``LocalFrame.to_enu`` on plain floats,
+    with the frame's origin and rotation computed once (float64 either way; Python floats skip numpy's scalar
+    overhead per sample)."""
+
+    def __init__(self, frame: LocalFrame) -> None:
+        self._o = tuple(float(x) for x in geodetic_to_ecef(frame.lat0_deg, frame.lon0_deg))
+        self._r = tuple(tuple(float(x) for x in row) for row in frame._rotation[:2])
+
+    def __call__(self, lat: float, lon: float) -> tuple[float, float]:
+        lat_r, lon_r = math.radians(lat), math.radians(lon)
+        sin_lat, cos_lat = math.sin(lat_r), math.cos(lat_r)
+        n = WGS84_A / math.sqrt(1.0 - WGS84_E2 * sin_lat * sin_lat)
+        o0, o1, o2 = self._o
+        d0, d1, d2 = (n * cos_lat * math.cos(lon_r) - o0, n * cos_lat * math.sin(lon_r) - o1,
+                      n * (1.0 - WGS84_E2) * sin_lat - o2)  # fmt: skip
+        (r00, r01, r02), (r10, r11, r12) = self._r
+        return r00 * d0 + r01 * d1 + r02 * d2, r10 * d0 + r11 * d1 + r12 * d2

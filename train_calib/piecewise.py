@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import bisect
+
 import numpy as np
 
 
@@ -48,3 +50,42 @@ class PiecewiseConstant:
         """The first break strictly after s (inf when none)."""
         i = int(np.searchsorted(self.breaks, s_m, side="right"))
         return float(self.breaks[i]) if i < self.breaks.size else float("inf")
+
+
+class ScalarPiecewise:
+    """One position at a time: a PiecewiseConstant's values with the same arithmetic (the same floats) as its
+    numpy methods, on plain floats (per sample, ~20x faster than numpy on 0-d arrays). Positions in m."""
+
+    __slots__ = ("breaks", "cumulative", "last", "values")
+
+    def __init__(self, f: PiecewiseConstant) -> None:
+        self.breaks = [float(x) for x in f.breaks]
+        self.values = [float(x) for x in f.values]
+        self.cumulative = [float(x) for x in f._cumulative]
+        self.last = len(self.breaks) - 1
+
+    def _index(self, s: float) -> int:
+        i = bisect.bisect_right(self.breaks, s) - 1
+        return 0 if i < 0 else self.last if i > self.last else i
+
+    def __call__(self, s: float) -> float:
+        """f(s)."""
+        return self.values[self._index(s)]
+
+    def integral(self, s: float) -> float:
+        """Integral of f from breaks[0] to s."""
+        i = self._index(s)
+        return self.cumulative[i] + self.values[i] * (s - self.breaks[i])
+
+    def mean_over(self, a: float, b: float) -> float:
+        """Mean of f over [a, b] (f(b) where the interval is empty)."""
+        if b - a > 1e-9:
+            breaks, values, cumulative, last = self.breaks, self.values, self.cumulative, self.last
+            i = bisect.bisect_right(breaks, b) - 1
+            i = 0 if i < 0 else last if i > last else i
+            j = bisect.bisect_right(breaks, a) - 1
+            j = 0 if j < 0 else last if j > last else j
+            return (cumulative[i] + values[i] * (b - breaks[i]) - (cumulative[j] + values[j] * (a - breaks[j]))) / (
+                b - a
+            )
+        return self(b)

@@ -7,6 +7,8 @@ length: the head at s, the tail at s - L.
 
 from __future__ import annotations
 
+import bisect
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -16,7 +18,7 @@ import numpy as np
 
 from . import physics
 from .geodesy import LocalFrame
-from .piecewise import PiecewiseConstant
+from .piecewise import PiecewiseConstant, ScalarPiecewise
 from .yamlcheck import Checker, load_yaml_mapping
 
 MAX_PERMILLE = 100.0
@@ -135,6 +137,68 @@ class Track:
             if station.name == name:
                 return station
         raise KeyError(f"track {self.name}: no station named {name!r}")
+
+
+class ScalarTrackTerms:
+    """``Track.track_force``, ``tunnel_fraction`` and ``speed_limit_at`` for one head position s (m) and a fixed
+    train length, on plain floats (per sample) with the same arithmetic."""
+
+    def __init__(self, track: Track, train_length_m: float) -> None:
+        self.length = float(train_length_m)
+        self.gradient = ScalarPiecewise(track.gradient)
+        self.curvature = ScalarPiecewise(track.curvature)
+        self.tunnel = ScalarPiecewise(track.tunnel)
+        self.limit = ScalarPiecewise(track.speed_limit)
+
+    def track_force(self, s: float) -> float:
+        """g(s) averaged over the train, N/kg."""
+        a = s - self.length
+        return physics.GRAVITY * (self.gradient.mean_over(a, s) + self.curvature.mean_over(a, s))
+
+    def tunnel_fraction(self, s: float) -> float:
+        """Fraction of the train inside a tunnel, 0..1."""
+        f = self.tunnel.mean_over(s - self.length, s)
+        return 0.0 if f < 0.0 else 1.0 if f > 1.0 else f  # = min(max(f, 0), 1), without two builtin calls
+
+
+class WindowProjector:
+    """``Track.project(e, n, s_min, s_max)`` for one point (m) on plain floats, visiting only the segments that
+    overlap the window: the nearest point with s in the window, the chainage interpolated linearly along each
+    segment (a window holds a few segments)."""
+
+    def __init__(self, track: Track) -> None:
+        self.s = [float(x) for x in track.geometry_s_m]
+        self.x = [float(x) for x in track.east_m]
+        self.y = [float(y) for y in track.north_m]
+        self.length = self.s[-1]
+        s, x, y = self.s, self.x, self.y
+        # per segment i (vertex i to i + 1): (s0, x0, y0, ds, dx, dy, max(|d|^2, 1e-12)), m and m^2
+        self._seg = []
+        for i in range(len(s) - 1):
+            dx, dy = x[i + 1] - x[i], y[i + 1] - y[i]
+            self._seg.append((s[i], x[i], y[i], s[i + 1] - s[i], dx, dy, max(dx * dx + dy * dy, 1e-12)))
+
+    def project(self, e: float, n: float, lo: float, hi: float) -> tuple[float, float]:
+        """(s, distance) in m of the nearest track point to (e, n) with s in [lo, hi]."""
+        s = self.s
+        lo, hi = max(lo, s[0]), min(hi, self.length)
+        if hi < lo:  # the window lies beyond an end of the line: its nearest end
+            lo = hi = s[0] if hi < s[0] else self.length
+        segments = len(s) - 1
+        first = min(max(bisect.bisect_right(s, lo) - 1, 0), segments - 1)
+        stop = min(max(bisect.bisect_left(s, hi), first + 1), segments)
+        best_s, best_d = lo, math.inf
+        hypot = math.hypot
+        for s0, x0, y0, ds, dx, dy, len2 in self._seg[first:stop]:
+            t = ((e - x0) * dx + (n - y0) * dy) / len2
+            t = 0.0 if t < 0.0 else 1.0 if t > 1.0 else t  # = min(max(t, 0), 1)
+            si = s0 + t * ds
+            si = lo if si < lo else hi if si > hi else si  # = min(max(si, lo), hi) (lo <= hi)
+            f = (si - s0) / ds if ds > 0 else 0.0
+            d = hypot(x0 + f * dx - e, y0 + f * dy - n)
+            if d < best_d:
+                best_s, best_d = si, d
+        return best_s, best_d
 
 
 TRACK_KEYS = (

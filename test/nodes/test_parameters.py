@@ -124,7 +124,7 @@ def test_a_bad_value_at_run_time_is_refused_with_the_reason_and_a_good_one_is_ap
         ok = gnss.set_parameters_atomically(
             [Parameter("start_station", value="Beta"), Parameter("max_cross_track", value=12.0)]
         )
-        assert ok.successful and gnss.ingest.config.max_cross_track == 12.0 and gnss.ingest._start_s == 2900.0
+        assert ok.successful and gnss.ingest.config.max_cross_track == 12.0 and gnss.ingest.settings.start_s == 2900.0
         for _ in range(3):  # the HMM's belief after a few samples ...
             regime.classifier.classify(0.3, 0.5, 10.0)
         assert regime.classifier.probabilities is not None

@@ -176,7 +176,7 @@ def test_speed_silent_for_minutes_while_the_gnss_continues(scenario, reference, 
     held = []
     for topic, msg in bag_messages(write_bag(tmp_path / "bag", events)):
         pipeline.add_message(topic, msg)
-        held.append(len(pipeline.ingest._fixes))
+        held.append(len(pipeline.ingest.pairer.fixes))
     out = pipeline.end_of_input()
     assert max(held) <= 40  # fixes kept for pairing: max_sample_age + pair_tolerance worth, not 400 s of them
     after = [m for m in out.measurements if m.stamp_ns >= T0 + 600 * NS]

@@ -87,7 +87,7 @@ class GnssSpeedNode(TrainCalibNode):
     def check_config(self, cfg: ParamSet) -> str | None:
         if isinstance(cfg, IngestConfig):
             try:
-                self.ingest._station_s(cfg)
+                self.ingest.start_position(cfg)
             except ConfigError as exc:
                 return exc.problem
         return None

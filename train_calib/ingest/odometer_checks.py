@@ -1,0 +1,84 @@
+"""The odometer checks of one time base: the accepted fixes against the integrated speed give the running direction
+(reversing) and the delay of the GNSS stamps (:mod:`train_calib.odometry`). Stamps in ns, positions in m."""
+
+from __future__ import annotations
+
+from collections import deque
+from typing import NamedTuple
+
+from ..odometry import BACKWARD, FORWARD, DelayEstimator, DirectionMonitor, Odometer
+from .config import IngestConfig
+from .records import MatchedFix
+
+
+class DirectionChanges(NamedTuple):
+    """What an update of the checks found: how many reversals began, and whether the fixes came back forward."""
+
+    reversals: int
+    forward_again: bool
+
+
+NO_CHANGE = DirectionChanges(0, False)
+
+
+class OdometerChecks:
+    """Running direction and GNSS stamp delay from the accepted fixes the speed odometer has reached."""
+
+    def __init__(self, config: IngestConfig) -> None:
+        self.odometer = Odometer(max(config.max_dead_reckoning, config.max_sample_age) + 60.0, config.max_sample_age)
+        self.direction = DirectionMonitor(config.reverse_distance)
+        self.delay = DelayEstimator(config.delay_window, config.position_std)
+        self.queue: deque[MatchedFix] = deque(maxlen=64)  # accepted fixes the odometer has not reached yet
+
+    @property
+    def reversing(self) -> bool:
+        """The fixes move against the track direction."""
+        return self.direction.direction == BACKWARD
+
+    def configure(self, old: IngestConfig, new: IngestConfig) -> None:
+        """A parameter change on the fly."""
+        if new.reverse_distance != old.reverse_distance:
+            self.direction.distance_m = new.reverse_distance
+        if new.delay_window != old.delay_window:
+            self.delay.time_constant_s = new.delay_window
+
+    def add_speed(self, t_ns: int, v: float) -> None:
+        """A speed sample in order (m/s); a gap the odometer does not bridge restarts the checks."""
+        restarts = self.odometer.restarts
+        self.odometer.add(t_ns, v)
+        if self.odometer.restarts != restarts:  # a gap the odometer does not bridge: its distances restart
+            self.direction.reset()
+            self.delay.reset()
+            self.queue.clear()
+
+    def reacquired(self) -> None:
+        """The position was re-acquired elsewhere: the fixes before do not compare with those after."""
+        self.delay.reset()
+        self.queue.clear()
+        self.direction.reset()
+
+    def update(self) -> DirectionChanges:
+        """Feed the fixes the odometer has reached to the direction monitor and the delay estimator."""
+        queue = self.queue
+        latest = self.odometer.latest_ns
+        if not queue or latest is None or queue[0].stamp_ns > latest:
+            return NO_CHANGE
+        odometer, direction, delay = self.odometer, self.direction, self.delay
+        reversals, forward_again = 0, False
+        while queue and queue[0].stamp_ns <= latest:
+            fix = queue.popleft()
+            at = odometer.at(fix.stamp_ns)
+            if at is None:
+                continue
+            d, v = at
+            before = direction.direction
+            after = direction.add(fix.stamp_ns, fix.s, d)
+            if after != before:
+                delay.reset()
+                if after == BACKWARD:
+                    reversals += 1
+                else:
+                    forward_again = True
+            elif after == FORWARD:
+                delay.add(fix.stamp_ns, fix.s, d, v)
+        return DirectionChanges(reversals, forward_again) if reversals or forward_again else NO_CHANGE
