@@ -2,7 +2,8 @@
 
 Each bundled bag goes once through ``pipeline.run_bag`` (ingest, UKF, regimes); the timed part is then only the
 features: ``FeatureAccumulator.update`` over every estimate with its phase (online, as feature_node) and
-``features_per_run`` over the whole run (offline). Minimum over repeats (wall and CPU time), in ms for all bags together.
+``features_per_run`` over the whole run (offline). Minimum and median wall time and median CPU
+time over repeats (benchlib.timed), in ms for all bags together.
 
     PYTHONPATH=. .venv/bin/python bench/refactor/bench_features.py [--repeats N]
 """
@@ -13,14 +14,14 @@ import argparse
 import json
 import os
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[2]
-sys.path.insert(0, str(ROOT / "bench" / "refactor"))
+sys.path[:0] = [str(ROOT / "bench" / "refactor"), str(ROOT / "bench")]
 
+from benchlib import timed  # noqa: E402
 from output_digest import bundled_inputs  # noqa: E402
 
 from train_calib.estimation import EstimateSeries, FeatureAccumulator  # noqa: E402
@@ -41,16 +42,9 @@ def prepared() -> list[tuple[list, list[int], EstimateSeries, np.ndarray]]:
     return out
 
 
-def best_ms(fn, repeats: int) -> tuple[float, float]:
-    """Minimum wall time and minimum CPU time of this process (ms) of ``fn`` over ``repeats`` calls (on a shared
-    machine the CPU time is the better estimate of the unloaded wall time)."""
-    wall, cpu = [], []
-    for _ in range(repeats):
-        t0, c0 = time.perf_counter(), time.process_time()
-        fn()
-        wall.append(time.perf_counter() - t0)
-        cpu.append(time.process_time() - c0)
-    return 1e3 * min(wall), 1e3 * min(cpu)
+def _ms(t: dict[str, float]) -> dict[str, float]:
+    """benchlib.timed's result in ms: minimum wall, median wall, median CPU time."""
+    return {"min": 1e3 * t["min_s"], "median": 1e3 * t["median_s"], "cpu_median": 1e3 * t["cpu_median_s"]}
 
 
 def main() -> int:
@@ -72,8 +66,8 @@ def main() -> int:
 
     result = {
         "samples": sum(len(d[1]) for d in data),
-        "online_ms (wall, cpu)": best_ms(online, args.repeats),
-        "offline_ms (wall, cpu)": best_ms(offline, args.repeats),
+        "online_ms": _ms(timed(online, args.repeats)),
+        "offline_ms": _ms(timed(offline, args.repeats)),
         "load": os.getloadavg()[0],
     }
     print(json.dumps(result))
