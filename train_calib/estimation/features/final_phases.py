@@ -83,19 +83,21 @@ class FinalPhases:
     def step(self, cur: Point, regime: int, effort: float) -> None:
         """One step from the last sample to ``cur``, labelled ``regime`` (UNKNOWN when standing); ``effort``: its
         published effort (with ``cur.src`` it gives w = r + g, ``opposing_force``)."""
+        t, s, _, accel, v, src = cur
         t_prev, s_prev, r_prev = self._prev
-        self._prev = (cur.t, cur.s, regime)
-        dt = cur.t - t_prev
-        if dt > 0.0 and math.isfinite(cur.accel):
-            self._u += cur.accel * dt
-        moving = cur.v >= self._standstill
-        self._locate_change(t_prev, s_prev, r_prev, cur, regime, moving)
+        self._prev = (t, s, regime)
+        dt = t - t_prev
+        if dt > 0.0 and math.isfinite(accel):
+            self._u += accel * dt
+        moving = v >= self._standstill
+        if not moving or regime != r_prev or (regime in _FINAL and self._last[regime] is None):
+            self._locate_change(t_prev, s_prev, r_prev, cur, regime, moving)  # (a no-op on the other steps)
         if not moving and regime == BRAKING:
             regime = UNKNOWN  # the step the train stopped in: its braking ended at the stop located above
         if regime in _FINAL:
             self._extend(self._last[regime], cur, regime, dt, effort)
-        if cur.src == EFFORT_POWER and self._power:
-            self._traction_t = cur.t
+        if src == EFFORT_POWER and self._power:
+            self._traction_t = t
         self._collect(cur, moving, dt)
 
     def _locate_change(self, t_prev: float, s_prev: float, r_prev: int, cur: Point, r: int, moving: bool) -> None:

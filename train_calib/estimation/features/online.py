@@ -87,7 +87,8 @@ class FeatureAccumulator:
             regime = UNKNOWN
         if dt > 0.0:
             self._count_step(t, v, v_mid, regime, effort, accel, dt)
-        self._cruise_step(t_prev, v, regime, dt)
+        if regime == CRUISING or self._regime == CRUISING:
+            self._cruise_step(t_prev, v, regime, dt)
         self._final.step(new_point((t, s, v_fit, accel, v, src)), regime, effort)
         if self._regime == BRAKING and regime != BRAKING:
             self._brake.end_run(self._final.latest)
