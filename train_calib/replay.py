@@ -233,6 +233,17 @@ def prepare_out(out: Path, overwrite: bool) -> None:
         raise BagError(f"{out}: cannot create the output directory: {exc.strerror or exc}") from None
 
 
+@dataclass
+class _Progress:
+    """How far a replay's streaming got (the clean-up after an exception reads it too)."""
+
+    sent: Counter[str] = field(default_factory=Counter)  # inputs published, per topic
+    interrupted: bool = False
+    max_behind: float = 0.0  # s: the furthest a message was published after its due time
+    stream_s: float = 0.0  # s: wall time from the first input published to the graph having handled the last
+    stream_cpu_s: float = 0.0  # s: CPU time of this process over the same span
+
+
 class Replay:
     """One replay: ``Replay(options).run()``."""
 
@@ -309,23 +320,42 @@ class Replay:
     def _run(
         self, context: Any, inputs: BagInputs, track_path: Path, train_path: Path, live_context: Any = None
     ) -> ReplayResult:
+        """The replay in an initialised context: open the publishers and the recording, start the graph, stream the
+        inputs through it, close everything; the result."""
+        o = self.o
+        rec_node, writer, executor_name = self._open_endpoints(context, inputs, live_context)
+        graph = None
+        extra: list[Any] = []
+        wall0 = time.monotonic()
+        progress = _Progress()
+        restore_levels = self._quiet_nodes() if o.quiet_nodes and not o.processes else {}
+        try:
+            graph = self._start_graph(context, track_path, train_path)
+            extra += list(o.extra_nodes(context)) if o.extra_nodes is not None else []
+            for n in (self.node, rec_node, *getattr(graph, "nodes", {}).values(), *extra):
+                self.executor.add_node(n)
+            self._stream(graph, inputs, progress)
+        except BaseException:
+            writer.close()
+            if not progress.sent and not progress.interrupted:  # failed before the first input: no empty recording
+                writer.path.unlink(missing_ok=True)
+                writer.metadata_path.unlink(missing_ok=True)
+            raise
+        finally:
+            writer.close()
+            self._tear_down(graph, extra, rec_node, restore_levels)
+        return self._result(inputs, writer, graph, executor_name, progress, time.monotonic() - wall0)
+
+    def _open_endpoints(self, context: Any, inputs: BagInputs, live_context: Any) -> tuple[Any, Any, str]:
+        """The replay's node and publishers (inputs, /clock), the executor, the recorder with its bag writer, and
+        with ``live`` the publishers into the caller's environment: (recorder node, writer, executor name)."""
         import rclpy
         from builtin_interfaces.msg import Time
-        from rclpy.logging import set_logger_level
         from rosgraph_msgs.msg import Clock
 
         from .nodes.common import reliable_qos
-        from .nodes.graph import InProcessGraph, ProcessGraph
         from .record import McapBagWriter, Recorder, message_class
 
-        o = self.o
-        overrides = {"track_file": str(track_path), "train_file": str(train_path), "use_sim_time": True}
-        # in a replay every regime comes (flow control, end of input): window_calib_node never gives up waiting for
-        # one, whatever the processes' scheduling (with --processes a measurement may run up to max_lag ahead of its
-        # regime, more than the on-board max_regime_wait)
-        overrides["max_regime_wait"] = REPLAY_MAX_REGIME_WAIT
-        if not sets_parameter(o.params_files, "diagnostics_period"):  # a rate-independent /diagnostics volume
-            overrides["diagnostics_period"] = REPLAY_DIAGNOSTICS_PERIOD_S
         self.node = rclpy.create_node("train_calib_replay", context=context)
         # the recorder follows /clock itself (sim_clock): a /clock it cannot read is counted, never fatal
         rec_node = rclpy.create_node("train_calib_recorder", context=context)
@@ -335,117 +365,144 @@ class Replay:
         self.clock_pub = self.node.create_publisher(Clock, "/clock", reliable_qos(10))
         self._clock_msg, self._time_msg = Clock, Time
         out_qos = {t: qos_dict(depth=1000) for t in OUTPUT_TOPICS} | {"/diagnostics": qos_dict(depth=100)}
-        writer = McapBagWriter(o.out, OUTPUT_TOPICS, qos=out_qos)
+        writer = McapBagWriter(self.o.out, OUTPUT_TOPICS, qos=out_qos)
+        self._open_live(live_context, inputs)
+        self.recorder = Recorder(rec_node, writer, OUTPUT_TOPICS, forward=self.live_outputs or None, sim_clock=True)
+        return rec_node, writer, executor_name
+
+    def _open_live(self, live_context: Any, inputs: BagInputs) -> None:
+        """With a live context (``live``), a second node in the caller's environment: publishes the inputs, /clock
+        and the outputs there, never subscribes."""
+        import rclpy
+        from rosgraph_msgs.msg import Clock
+
+        from .nodes.common import reliable_qos
+        from .record import message_class
+
         self.live_node = None
         self.live_pubs: dict[str, Any] = {}
         self.live_outputs: dict[str, Any] = {}
-        if live_context is not None:  # a second context in the caller's environment: publishes, never subscribes
-            self.live_node = rclpy.create_node("train_calib_replay_live", context=live_context)
-            self.live_pubs = {
-                t: self.live_node.create_publisher(message_class(ty), t, qos) for t, ty in inputs.topics.items()
-            }
-            self.live_pubs["/clock"] = self.live_node.create_publisher(Clock, "/clock", reliable_qos(10))
-            self.live_outputs = {
-                t: self.live_node.create_publisher(message_class(ty), t, reliable_qos(1000))
-                for t, ty in OUTPUT_TOPICS.items()
-            }
-        self.recorder = Recorder(rec_node, writer, OUTPUT_TOPICS, forward=self.live_outputs or None, sim_clock=True)
-        graph = None
-        extra: list[Any] = []
-        wall0 = time.monotonic()
-        interrupted = False
-        max_behind = 0.0
-        stream_s = stream_cpu_s = 0.0
-        sent: Counter[str] = Counter()
-        restore_levels = self._quiet_nodes() if o.quiet_nodes and not o.processes else {}
-        try:
-            if o.graph_factory is not None:
-                graph = o.graph_factory(context, self.node_names, overrides, o.params_files)
-            elif o.processes:
-                graph = ProcessGraph(
-                    self.node,
-                    self.node_names,
-                    overrides | {"report_progress": True},
-                    o.params_files,
-                    env_changes=self.graph_env,
-                    log_level="warn" if o.quiet_nodes else None,
-                )
-            else:
-                graph = InProcessGraph(context, self.node_names, overrides, o.params_files)
-            self.graph = graph
-            extra += list(o.extra_nodes(context)) if o.extra_nodes is not None else []
-            for n in (self.node, rec_node, *getattr(graph, "nodes", {}).values(), *extra):
-                self.executor.add_node(n)
-            self._publish_clock(inputs.messages[0][1])
-            try:
-                self._wait_connected(graph)
-            except Interrupted:
-                interrupted = True
-            self._log(
-                f"replaying {len(inputs.messages)} messages ({inputs.duration_s:.0f} s of bag time) through "
-                f"{', '.join(graph.names)} ({'one process per node' if o.processes else 'one process'}, "
-                f"rate {'max' if o.rate == 0 else f'{o.rate:g}x'}; {self._where()})"
+        if live_context is None:
+            return
+        qos = reliable_qos(1000)
+        self.live_node = rclpy.create_node("train_calib_replay_live", context=live_context)
+        self.live_pubs = {
+            t: self.live_node.create_publisher(message_class(ty), t, qos) for t, ty in inputs.topics.items()
+        }
+        self.live_pubs["/clock"] = self.live_node.create_publisher(Clock, "/clock", reliable_qos(10))
+        self.live_outputs = {
+            t: self.live_node.create_publisher(message_class(ty), t, reliable_qos(1000))
+            for t, ty in OUTPUT_TOPICS.items()
+        }
+
+    def _start_graph(self, context: Any, track_path: Path, train_path: Path) -> Any:
+        """The node graph (the options' factory, one process per node, or all in this process), in ``self.graph``."""
+        from .nodes.graph import InProcessGraph, ProcessGraph
+
+        o = self.o
+        overrides = {"track_file": str(track_path), "train_file": str(train_path), "use_sim_time": True}
+        # in a replay every regime comes (flow control, end of input): window_calib_node never gives up waiting for
+        # one, whatever the processes' scheduling (with --processes a measurement may run up to max_lag ahead of its
+        # regime, more than the on-board max_regime_wait)
+        overrides["max_regime_wait"] = REPLAY_MAX_REGIME_WAIT
+        if not sets_parameter(o.params_files, "diagnostics_period"):  # a rate-independent /diagnostics volume
+            overrides["diagnostics_period"] = REPLAY_DIAGNOSTICS_PERIOD_S
+        if o.graph_factory is not None:
+            graph = o.graph_factory(context, self.node_names, overrides, o.params_files)
+        elif o.processes:
+            graph = ProcessGraph(
+                self.node,
+                self.node_names,
+                overrides | {"report_progress": True},
+                o.params_files,
+                env_changes=self.graph_env,
+                log_level="warn" if o.quiet_nodes else None,
             )
-            try:
-                if interrupted:
-                    raise Interrupted
-                stream0, cpu0 = time.monotonic(), time.process_time()
-                max_behind = self._publish_all(graph, inputs, sent)
-                self._spin_until(
-                    lambda: graph.settled(self.recorder.received), lambda: "the graph to handle the last input", graph
-                )
-                stream_s, stream_cpu_s = time.monotonic() - stream0, time.process_time() - cpu0
-                self._end_of_input(graph, sent)
-            except Interrupted:
-                interrupted = True
-                self._log("interrupted: the graph handles what it has received, then the recording is closed")
-                try:  # no new input: what was published flows through and each run is closed, as at the end
-                    self._end_of_input(graph, sent, interruptible=False, timeout_s=10.0)
-                except ReplayError as exc:
-                    self._log(f"the graph did not drain after the interruption: {exc}")
-            self._publish_clock(self._last_sent_ns if interrupted else inputs.messages[-1][1], force=True)
-            try:
-                self._finish(graph)
-            except ReplayError:
-                if not interrupted:
-                    raise
-                self._log("the graph did not finish cleanly after the interruption; the recording is closed")
-        except BaseException:
-            writer.close()
-            if not sent and not interrupted:  # failed before the first input: leave no empty recording behind
-                writer.path.unlink(missing_ok=True)
-                writer.metadata_path.unlink(missing_ok=True)
-            raise
-        finally:
-            writer.close()
-            if graph is not None:
-                for n in getattr(graph, "nodes", {}).values():
-                    self.executor.remove_node(n)
-                graph.close()
-            self.executor.shutdown()
-            for n in extra:
-                n.destroy_node()
-            rec_node.destroy_node()
-            self.node.destroy_node()
-            if self.live_node is not None:
-                self.live_node.destroy_node()
-            for name, level in restore_levels.items():
-                set_logger_level(name, level)
-        wall = time.monotonic() - wall0
+        else:
+            graph = InProcessGraph(context, self.node_names, overrides, o.params_files)
+        self.graph = graph
+        return graph
+
+    def _stream(self, graph: Any, inputs: BagInputs, progress: _Progress) -> None:
+        """Wait for the graph, publish every input, let the graph handle them and close the runs (on an interruption:
+        what was published), then the last /clock and the graph's end."""
+        o = self.o
+        self._publish_clock(inputs.messages[0][1])
+        try:
+            self._wait_connected(graph)
+        except Interrupted:
+            progress.interrupted = True
+        self._log(
+            f"replaying {len(inputs.messages)} messages ({inputs.duration_s:.0f} s of bag time) through "
+            f"{', '.join(graph.names)} ({'one process per node' if o.processes else 'one process'}, "
+            f"rate {'max' if o.rate == 0 else f'{o.rate:g}x'}; {self._where()})"
+        )
+        try:
+            if progress.interrupted:
+                raise Interrupted
+            self._publish_and_settle(graph, inputs, progress)
+        except Interrupted:
+            progress.interrupted = True
+            self._log("interrupted: the graph handles what it has received, then the recording is closed")
+            try:  # no new input: what was published flows through and each run is closed, as at the end
+                self._end_of_input(graph, progress.sent, interruptible=False, timeout_s=10.0)
+            except ReplayError as exc:
+                self._log(f"the graph did not drain after the interruption: {exc}")
+        self._publish_clock(self._last_sent_ns if progress.interrupted else inputs.messages[-1][1], force=True)
+        try:
+            self._finish(graph)
+        except ReplayError:
+            if not progress.interrupted:
+                raise
+            self._log("the graph did not finish cleanly after the interruption; the recording is closed")
+
+    def _publish_and_settle(self, graph: Any, inputs: BagInputs, progress: _Progress) -> None:
+        """Publish every input, wait until the graph has handled the last (the stream time), then end the input."""
+        stream0, cpu0 = time.monotonic(), time.process_time()
+        progress.max_behind = self._publish_all(graph, inputs, progress.sent)
+        self._spin_until(
+            lambda: graph.settled(self.recorder.received), lambda: "the graph to handle the last input", graph
+        )
+        progress.stream_s, progress.stream_cpu_s = time.monotonic() - stream0, time.process_time() - cpu0
+        self._end_of_input(graph, progress.sent)
+
+    def _tear_down(self, graph: Any, extra: list[Any], rec_node: Any, restore_levels: dict[str, Any]) -> None:
+        """Close the graph, the executor and the nodes; restore the loggers' levels."""
+        from rclpy.logging import set_logger_level
+
+        if graph is not None:
+            for n in getattr(graph, "nodes", {}).values():
+                self.executor.remove_node(n)
+            graph.close()
+        self.executor.shutdown()
+        for n in extra:
+            n.destroy_node()
+        rec_node.destroy_node()
+        self.node.destroy_node()
+        if self.live_node is not None:
+            self.live_node.destroy_node()
+        for name, level in restore_levels.items():
+            set_logger_level(name, level)
+
+    def _result(
+        self, inputs: BagInputs, writer: Any, graph: Any, executor_name: str, progress: _Progress, wall_s: float
+    ) -> ReplayResult:
+        o = self.o
+        interrupted = progress.interrupted
         return ReplayResult(
             out=o.out,
             output_bag=o.out / OUTPUT_FILE,
-            sent=dict(sent),
+            sent=dict(progress.sent),
             recorded=dict(writer.counts),
-            wall_s=wall,
+            wall_s=wall_s,
             bag_duration_s=inputs.duration_s,
             mode="processes" if o.processes else "one process",
             executor=executor_name,
             nodes=tuple(graph.names),
             interrupted=interrupted,
-            max_behind_s=max_behind,
-            stream_s=stream_s,
-            stream_cpu_s=stream_cpu_s,
+            max_behind_s=progress.max_behind,
+            stream_s=progress.stream_s,
+            stream_cpu_s=progress.stream_cpu_s,
             input_error=inputs.error,
             undecodable=dict(inputs.undecodable),
             signal=self._signum if interrupted else None,

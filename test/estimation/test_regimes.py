@@ -295,7 +295,7 @@ def _brute_force_labels(likelihood, starts, clf) -> list[int]:
     """Posterior marginals by enumerating every regime path of each sequence (independent of regimes_batch)."""
     import itertools
 
-    from train_calib.estimation.regimes import _START_PRIOR
+    from train_calib.estimation.regime_model import START_PRIOR as _START_PRIOR
 
     stay, switch = math.exp(clf._log_stay), math.exp(clf._log_switch)
     bounds = [i for i, s in enumerate(starts) if s] + [len(starts)]

@@ -107,3 +107,17 @@ def test_strict_rule_reproduces_the_papers_delta_trade_off(fleet):
     assert one.confusion["VIRM10"] == {"none": 10} and one.confusion["ICRm"] == {"none": 10}
     # delta 2: intervals of +-2 v cover several compositions: almost nothing assigned
     assert two.n_assigned <= 4
+
+
+def test_joints_slower_than_min_speed_are_skipped():
+    """Accelerating at 0.6 m/s^2 from a stop to 35 m/s over 100 m sections: the joints where the mean speed is below
+    min_speed_ms (the train too slow: a stop nearby) give no estimate; the others are those of min_speed_ms = 0."""
+    t, s, _ = kinematic_run(8000.0, 35.0, accel=0.6, brake=0.6)
+    sections = even_sections(8000.0, 80)
+    run = occupation_events(t, s, 162.0, sections, round_down=False)
+    every = joint_estimates(run, sections, min_speed_ms=0.0)
+    fast = joint_estimates(run, sections, min_speed_ms=15.0)
+    keep = every.speed_ms >= 15.0
+    assert (~keep).sum() > 0 and keep.sum() >= 40
+    np.testing.assert_array_equal(fast.joint_m, every.joint_m[keep])
+    assert fast.section_ids == [sid for sid, k in zip(every.section_ids, keep) if k]

@@ -116,3 +116,17 @@ def test_batch_objective_equals_the_scalar_one(line, composition):
     out = fun(x)
     assert out[-1] == PENALTY_S and np.array_equal(out[:-1], batch[:-1]) and fun.runs == n
     assert fun(x[:, 0]) == batch[0]  # one vector: a number
+
+
+def test_evaluate_sums_the_absolute_passage_time_errors(line, composition):
+    """Away from the truth the residuals have both signs: evaluate's objective is the sum of their absolute values
+    (eq. 8), the same number as objective() and the batch objective."""
+    model = SimulatorModel(line, composition)
+    run, _ = _two_leg_run(model, composition.model_params(**TRUTH), line)
+    obs = build_observations(run, line.sections, STOPS, composition.length_m)
+    p = composition.model_params(**{**TRUTH, "theta_cruise": 0.85, "c2": 4.5})
+    ev = evaluate(obs, model, p)
+    assert (ev.residual_s > 0.1).any() and (ev.residual_s < -0.1).any()
+    assert ev.objective_s == pytest.approx(float(np.sum(np.abs(ev.residual_s))), rel=1e-12)
+    assert ev.objective_s == pytest.approx(objective(obs, model, p), rel=1e-12)
+    assert ev.objective_s > 1.0

@@ -18,7 +18,7 @@ from train_calib.window import (
     scaled_condition_number,
 )
 from train_calib.window.evaluation import resistance_errors, series_rows, step_errors
-from train_calib.window.fit import resistance_standard_error
+from train_calib.window.fit import ill_posed_why, resistance_standard_error
 
 TRAIN = train_spec()
 M = TRAIN.effective_mass_kg
@@ -187,3 +187,15 @@ def test_braking_steps_with_unmeasured_mechanical_brake_are_left_out():
     v = np.array([40.0, 80.0, 120.0]) / 3.6
     assert np.allclose(np.polyval(excluded.estimate[::-1], v), TRUTH(v), rtol=1e-6)
     assert np.max(np.abs(np.polyval(included.estimate[::-1], v) / TRUTH(v) - 1)) > 0.2
+
+
+def test_a_window_of_nearly_constant_speed_is_ill_posed_by_its_speed_span():
+    """min_speed_span 1 m/s: a span of 0.5 m/s names the speed span as the reason, whatever the other criteria; 0.1
+    m/s more than the bound passes."""
+    config = WindowConfig()
+    assert config.min_speed_span == 1.0
+    why = ill_posed_why(60, 0.5, 10.0, config)
+    assert why == ("speed span {:.2f} m/s < min_speed_span {:g} m/s", 0.5, 1.0)
+    assert why[0].format(*why[1:]) == "speed span 0.50 m/s < min_speed_span 1 m/s"
+    assert ill_posed_why(60, 1.1, 10.0, config) == ()
+    assert ill_posed_why(60, 0.95, 10.0, WindowConfig(min_speed_span=0.9)) == ()

@@ -298,7 +298,7 @@ def test_pushed_samples_make_the_python_rows_bit_for_bit(scheme, constraints):
     config = WindowConfig(difference_scheme=scheme, traction_constraint=constraints[0],
                           adhesion_constraint=constraints[1], max_gap=2.0, window_length=40.0)  # fmt: skip
     step = StepModel(TRAIN, config)
-    c_window = kernel.Window(FastFit(TRAIN, config)._params, step.params())
+    c_window = kernel.Window(FastFit(TRAIN, config)._params, step.params(kernel.STEP_PARAM_NAMES))
     py_window = _PyWindow(step, 16)
     rng = np.random.default_rng(len(scheme) + 3 * sum(constraints))
     t_ns = 0
@@ -330,7 +330,7 @@ def test_push_needs_the_step_model():
     window = kernel.Window(FastFit(TRAIN, WindowConfig())._params)
     with pytest.raises(ValueError, match="push: this Window was made without step_params"):
         window.push(0, 0.0, 10.0, True, 1e5, 0.0, 0.0, 0.0, 0.0, -1, 0)
-    with pytest.raises(ValueError, match=r"step_params: the 19 values of StepModel\.params\(\)"):
+    with pytest.raises(ValueError, match=r"step_params: the 19 values of StepModel\.params\(STEP_PARAM_NAMES\)"):
         kernel.Window(FastFit(TRAIN, WindowConfig())._params, np.zeros(18))
 
 
@@ -382,3 +382,50 @@ def test_the_calibrator_says_how_it_fits():
     assert WindowCalibrator(TRAIN, WindowConfig(), compiled=False).fit_path == "Python"
     assert WindowCalibrator(TRAIN, WindowConfig(), fast=False).fit_path == "reference solver"
     assert WindowCalibrator(TRAIN, WindowConfig(gof="sae")).fit_path == "reference solver"
+
+
+# -- the step model goes to the kernel by name (issue 23: 19 values by position, only their count checked) ----------
+FLAGS = ("traction", "adhesion", "exclude_braking")
+
+
+def test_the_kernel_reads_each_step_value_under_its_own_name():
+    """One value set at a time: the kernel's Window reads it into the field of that name and no other, so its name
+    table (STEP_PARAM_NAMES) and its reads cannot go out of step unnoticed."""
+    names = kernel.STEP_PARAM_NAMES
+    assert sorted(names) == sorted(StepModel(TRAIN, WindowConfig()).values())
+    for name in names:
+        read = kernel._read_step_params(np.array([2.0 if n == name else 0.0 for n in names]))
+        assert set(read) == set(names)
+        assert read[name] == (1.0 if name in FLAGS else 2.0), name
+        assert all(value == 0.0 for other, value in read.items() if other != name), (name, read)
+
+
+def test_the_step_model_is_ordered_by_the_kernels_names():
+    """StepModel.params(names) places every value by name: a reordering on either side changes nothing, a name
+    that one side lacks is an error at construction of the Window."""
+    step = StepModel(TRAIN, WindowConfig(exclude_braking=True))
+    values = step.values()
+    names = kernel.STEP_PARAM_NAMES
+    assert kernel._read_step_params(step.params(names)) == values
+    reordered = tuple(reversed(names))
+    np.testing.assert_array_equal(step.params(reordered), [values[n] for n in reordered])
+    assert step.params(reordered)[0] == values[names[-1]] != step.params(names)[0]
+    with pytest.raises(ValueError, match="step model names"):
+        step.params((*names[:-1], "exclude_braking_typo"))
+    with pytest.raises(ValueError, match="step model names"):
+        step.params(names[:-1])
+
+
+def test_a_kernel_name_the_model_lacks_fails_when_the_window_is_built(monkeypatch):
+    """The calibrator asks the kernel for its order of names; with a name the model lacks, building the window fails
+    instead of misreading."""
+    step = StepModel(TRAIN, WindowConfig())
+    fit = FastFit(TRAIN, WindowConfig())
+
+    class Renamed:
+        STEP_PARAM_NAMES = (*kernel.STEP_PARAM_NAMES[:-1], "unknown")
+        Window = kernel.Window
+
+    monkeypatch.setattr(fast_module, "_kernel", Renamed)
+    with pytest.raises(ValueError, match="step model names"):
+        fit.new_window(step)

@@ -66,36 +66,8 @@ import numpy as np
 
 from ..regime_codes import BRAKING, COASTING, CRUISING, REGIME_NAMES, TRACTION, UNKNOWN  # noqa: F401 (re-exported)
 from .config import RegimeConfig
-
-_SQRT2 = math.sqrt(2.0)
-_LOG_SQRT_2PI = 0.5 * math.log(2.0 * math.pi)
-_START_PRIOR = (0.85, 0.05, 0.05, 0.05)
-"""Probabilities of (TRACTION, CRUISING, COASTING, BRAKING) before the first moving sample: departing."""
-_DEFAULT_W = 0.02
-"""r + g (N/kg) assumed before any computed-effort sample was seen (r0 of an EMU on level track)."""
-
-
-def _rule(e: float, a: float, cfg: RegimeConfig) -> int:
-    """The paper's rule on effort e and acceleration a (not NaN)."""
-    tol_a = cfg.cruise_tolerance
-    if abs(e) <= cfg.effort_tolerance and not (cfg.hold_detection and abs(a) < abs(e) and abs(a) <= tol_a):
-        return COASTING
-    if abs(a) <= tol_a:
-        return CRUISING
-    return TRACTION if e > 0.0 else BRAKING
-
-
-def _most_probable(p0: float, p1: float, p2: float, p3: float) -> int:
-    """The regime code of the largest of the weights of (TRACTION, CRUISING, COASTING, BRAKING); the first of equal
-    maxima."""
-    best, top = TRACTION, p0
-    if p1 > top:
-        best, top = CRUISING, p1
-    if p2 > top:
-        best, top = COASTING, p2
-    if p3 > top:
-        best = BRAKING
-    return best
+from .regime_model import DEFAULT_W, LOG_SQRT_2PI, SQRT2, START_PRIOR, most_probable, rule
+from .regimes_batch import classify_hmm
 
 
 def _log_erfc(x: float) -> float:
@@ -152,7 +124,7 @@ class RegimeClassifier:
         self._imm = _Imm(cfg) if cfg.method == "imm" else None
         self._v = cfg.standstill_speed
         s = self._sigma = cfg.accel_noise_std
-        self._log_norm = -_LOG_SQRT_2PI - math.log(s)
+        self._log_norm = -LOG_SQRT_2PI - math.log(s)
         lam = self._lam = 1.0 / cfg.traction_accel_mean
         self._t_const = math.log(0.5 * lam) + 0.5 * lam * lam * s * s
         self._t_min = cfg.traction_accel_min
@@ -242,7 +214,7 @@ class RegimeClassifier:
                     self._imm.restart()
                 return UNKNOWN
         if not self._hmm or not (math.isfinite(e) and math.isfinite(a)):
-            self._phase = _rule(e, a, self.config)
+            self._phase = rule(e, a, self.config)
             return self._phase
         w_given = _float(opposing_force) if opposing_force is not None else None
         if w_given is not None and not math.isfinite(w_given):
@@ -275,14 +247,14 @@ class RegimeClassifier:
         # log densities of y under each regime
         s, lam = self._sigma, self._lam
         yt = y - self._t_min
-        l_t = self._t_const - lam * yt + _log_erfc((lam * s * s - yt) / (_SQRT2 * s))
+        l_t = self._t_const - lam * yt + _log_erfc((lam * s * s - yt) / (SQRT2 * s))
         z = y / s
         l_h = self._log_norm - 0.5 * z * z
         sc = math.hypot(s, self._w_rel * w)
         z = (y + w) / sc
-        l_c = -_LOG_SQRT_2PI - math.log(sc) - 0.5 * z * z
+        l_c = -LOG_SQRT_2PI - math.log(sc) - 0.5 * z * z
         lo, hi = self._b_lo, self._b_hi
-        mass = 0.5 * (math.erf((hi - y) / (_SQRT2 * s)) - math.erf((lo - y) / (_SQRT2 * s)))
+        mass = 0.5 * (math.erf((hi - y) / (SQRT2 * s)) - math.erf((lo - y) / (SQRT2 * s)))
         if mass > 1e-300:
             l_b = math.log(mass / (hi - lo))
         else:  # far outside [lo, hi]: the Gaussian tail of the nearer end
@@ -294,7 +266,7 @@ class RegimeClassifier:
         # predict and update
         prev = self._prob
         if prev is None:
-            prior = _START_PRIOR
+            prior = START_PRIOR
         else:
             stay, switch = math.exp(self._log_stay), math.exp(self._log_switch)
             prior = tuple(p * (stay - switch) + switch for p in prev)
@@ -304,16 +276,16 @@ class RegimeClassifier:
         if prev is not None and self._lagged:  # the previous sample given this one: p_prev * (A l), A = keep I + switch
             common = switch * sum(likelihood)
             keep = stay - switch
-            self._revised = _most_probable(*(p * (keep * lk + common) for p, lk in zip(prev, likelihood)))
+            self._revised = most_probable(*(p * (keep * lk + common) for p, lk in zip(prev, likelihood)))
         total = post[0] + post[1] + post[2] + post[3]
         self._prob = prob = [p / total for p in post]
-        return _most_probable(*prob)
+        return most_probable(*prob)
 
     def _carried_w(self, v: float) -> float:
         """r + g where the effort is known: the last computed-effort value, scaled with speed."""
         w = self._w_last
         if math.isnan(w):
-            return _DEFAULT_W
+            return DEFAULT_W
         v0 = self._w_speed
         if math.isfinite(v) and math.isfinite(v0):
             w *= (self._vc2 + v * v) / (self._vc2 + v0 * v0)
@@ -471,7 +443,7 @@ class _Imm:
             lik = math.exp(-0.5 * nu * nu / sv) / math.sqrt(2.0 * math.pi * sv)
             if j == 0 or j == 3:  # the sign of the effort a + r + g: positive in traction, negative in braking
                 x = (an + w) / math.sqrt(paa_n)
-                lik *= 0.5 * math.erfc(-x / _SQRT2 if j == 0 else x / _SQRT2)
+                lik *= 0.5 * math.erfc(-x / SQRT2 if j == 0 else x / SQRT2)
             weights.append(cj * lik)
             out_x.append([vp + kv * nu, an, qvv - kv * qvv, qva - kv * qva, paa_n])
         total = weights[0] + weights[1] + weights[2] + weights[3]
@@ -517,7 +489,6 @@ def classify_regimes(
     if cfg.method != "hmm":
         out = _classify_rule(e, a, cfg, speed, smooth)
         return (out, out.copy()) if phase else out
-    from .regimes_batch import classify_hmm
 
     def flat(x, dtype):
         return None if x is None else np.broadcast_to(np.asarray(x, dtype=dtype), e.shape).ravel()

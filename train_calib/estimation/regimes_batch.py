@@ -18,12 +18,16 @@ samples, so it is never what the graph publishes.
 from __future__ import annotations
 
 import math
+from typing import TYPE_CHECKING
 
 import numpy as np
 from scipy.special import erf, erfc
 
 from ..regime_codes import UNKNOWN
-from .regimes import _DEFAULT_W, _LOG_SQRT_2PI, _SQRT2, _START_PRIOR, RegimeClassifier, _most_probable, _rule
+from .regime_model import DEFAULT_W, LOG_SQRT_2PI, SQRT2, START_PRIOR, most_probable, rule
+
+if TYPE_CHECKING:  # annotations only: regimes imports this module
+    from .regimes import RegimeClassifier
 
 
 def classify_hmm(
@@ -53,7 +57,7 @@ def _classify(e, a, clf, speed, known, w_given, smooth=False) -> np.ndarray:
         usable &= moving
     finite = np.isfinite(e) & np.isfinite(a)
     for i in np.flatnonzero(usable & ~finite):  # infinite values: the rule, the filter left as it is
-        out[i] = _rule(float(e[i]), float(a[i]), clf.config)
+        out[i] = rule(float(e[i]), float(a[i]), clf.config)
     index = np.flatnonzero(usable & finite)
     if not len(index):
         return out
@@ -71,7 +75,7 @@ def _classify(e, a, clf, speed, known, w_given, smooth=False) -> np.ndarray:
     diff = ef - af
     last = np.maximum.accumulate(np.where(computed, np.arange(len(index)), -1))
     seen = last >= 0
-    w_last = np.where(seen, diff[np.maximum(last, 0)], _DEFAULT_W)
+    w_last = np.where(seen, diff[np.maximum(last, 0)], DEFAULT_W)
     v0 = v[np.maximum(last, 0)]
     scale = seen & np.isfinite(v) & np.isfinite(v0)
     vc2 = clf._vc2
@@ -102,14 +106,14 @@ def _log_densities(y: np.ndarray, w: np.ndarray, clf: RegimeClassifier) -> np.nd
     s, lam = clf._sigma, clf._lam
     logs = np.empty((len(y), 4))
     yt = y - clf._t_min
-    logs[:, 0] = clf._t_const - lam * yt + _log_erfc((lam * s * s - yt) / (_SQRT2 * s))
+    logs[:, 0] = clf._t_const - lam * yt + _log_erfc((lam * s * s - yt) / (SQRT2 * s))
     z = y / s
     logs[:, 1] = clf._log_norm - 0.5 * z * z
     sc = np.hypot(s, clf._w_rel * w)
     z = (y + w) / sc
-    logs[:, 2] = -_LOG_SQRT_2PI - np.log(sc) - 0.5 * z * z
+    logs[:, 2] = -LOG_SQRT_2PI - np.log(sc) - 0.5 * z * z
     lo, hi = clf._b_lo, clf._b_hi
-    mass = 0.5 * (erf((hi - y) / (_SQRT2 * s)) - erf((lo - y) / (_SQRT2 * s)))
+    mass = 0.5 * (erf((hi - y) / (SQRT2 * s)) - erf((lo - y) / (SQRT2 * s)))
     inside = mass > 1e-300
     l_in = np.log(mass / (hi - lo))
     z = np.minimum(np.abs(y - lo), np.abs(y - hi)) / s  # far outside [lo, hi]: the nearer end's Gaussian tail
@@ -128,7 +132,7 @@ def _log_erfc(x: np.ndarray) -> np.ndarray:
 
 def _forward(likelihood: list[list[float]], starts: list[bool], clf: RegimeClassifier) -> list[int]:
     """The forward recursion on the likelihoods exp(log density - max) per sample: the most probable regime."""
-    return [_most_probable(*p) for p in _filtered(likelihood, starts, clf)]
+    return [most_probable(*p) for p in _filtered(likelihood, starts, clf)]
 
 
 def _filtered(likelihood: list[list[float]], starts: list[bool], clf: RegimeClassifier) -> list[tuple]:
@@ -139,7 +143,7 @@ def _filtered(likelihood: list[list[float]], starts: list[bool], clf: RegimeClas
     p0 = p1 = p2 = p3 = 0.0
     for (l0, l1, l2, l3), start in zip(likelihood, starts):
         if start:
-            q0, q1, q2, q3 = _START_PRIOR
+            q0, q1, q2, q3 = START_PRIOR
         else:
             q0, q1, q2, q3 = p0 * keep + switch, p1 * keep + switch, p2 * keep + switch, p3 * keep + switch
         q0, q1, q2, q3 = q0 * l0, q1 * l1, q2 * l2, q3 * l3
@@ -170,5 +174,5 @@ def _smoothed(likelihood: list[list[float]], starts: list[bool], clf: RegimeClas
         else:  # the last sample of a sequence
             b0 = b1 = b2 = b3 = 1.0
         f0, f1, f2, f3 = filtered[i]
-        regimes[i] = _most_probable(f0 * b0, f1 * b1, f2 * b2, f3 * b3)
+        regimes[i] = most_probable(f0 * b0, f1 * b1, f2 * b2, f3 * b3)
     return regimes

@@ -590,15 +590,15 @@ def make_executor(context: Context, kind: str | None = None) -> Any:
     (SingleThreadedExecutor). Chosen by `kind`, else the TRAIN_CALIB_EXECUTOR environment variable.
 
     Why ``events`` is the default, measured with bench/bench_graph.py (bags/tunnel_line_37km_1s_00 replayed at
-    rate 0 through the four estimator nodes; four runs on the shared 2-core machine, bench/RESULTS.md): the graph
-    handles 790-960 speed samples/s with it and 156-270 with ``single`` (3.6-5x). Against a bare rclpy relay
-    chain with the same hops and messages on the same executor, the graph reaches 47-53 % with ``events`` and
-    50-77 % with ``single``: the nodes' own Python work (about 0.5-0.65 ms per speed sample: ingest 0.28-0.33,
-    UKF 0.13, features 0.09, regime 0.05 ms) is the same under both executors and weighs less against the
-    SingleThreadedExecutor's slower chain, which rebuilds its wait set in Python before every callback (the bare
-    chain costs about 3 ms per sample with it, 0.55-0.6 ms with ``events``). So the lower ratio of ``events``
-    comes from a faster baseline, not from a slower graph; neither executor reaches issue 9's 80 %, and
-    ``single`` would cut the throughput 3.6-5x.
+    rate 0; bench/RESULTS.md, section 3, the latest figures): the four estimator nodes handle 1501 speed samples/s
+    with it and 285 with ``single`` (5.3x). Against a bare rclpy relay chain with the same hops and messages on the
+    same executor, the graph reaches 74 % with ``events`` (the whole graph with window_calib_node: 72 %) and 80 %
+    with ``single``: the nodes' own Python work (about 0.45 ms per speed sample over the raw chain: gnss_speed_node
+    0.13, ukf_node 0.13, regime_node 0.08, feature_node 0.04, window_calib_node 0.10 ms) is the same under both
+    executors and weighs less against the SingleThreadedExecutor's slower chain, which rebuilds its wait set in
+    Python before every callback (the bare chain: about 2.8 ms per sample with it, 0.49 ms with ``events``). So the
+    lower ratio of ``events`` comes from a faster baseline, not from a slower graph: with ``events`` the graph misses
+    issue 9's 80 % (74 / 72 %), and ``single`` reaches it only by cutting the throughput 5x.
     """
     kind = kind or os.environ.get("TRAIN_CALIB_EXECUTOR", "events")
     if kind == "events":

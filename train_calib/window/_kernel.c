@@ -697,7 +697,22 @@ static PyObject *kernel_fit(PyObject *module, PyObject *const *args, Py_ssize_t 
 
 /* ---- one step of the window's rows: model.StepModel in C (same operations, same order: equal bit for bit) ------ */
 
-#define STEP_PARAMS 19
+/* The step model's values by name (model.StepModel.values()): Python fills the array in the order of the names that
+   the module exports (STEP_PARAM_NAMES, from this table), so the two sides agree by name, not by position; each
+   name is bound to its index here, and step_model reads by the same indices. */
+enum {
+    SP_MASS, SP_ETA, SP_AUXILIARY_W, SP_TUNNEL_FACTOR, SP_TRACTION, SP_C0, SP_C2, SP_V_TRANSITION, SP_ADHESION,
+    SP_ADHESIVE_FRACTION, SP_GAMMA, SP_GRAVITY, SP_DIFFERENCE_SCHEME, SP_MIN_SPEED, SP_MAX_GAP, SP_CONSTRAINT_SIGMA,
+    SP_EFFORT_TOLERANCE, SP_CRUISE_TOLERANCE, SP_EXCLUDE_BRAKING, STEP_PARAMS
+};
+static const char *const STEP_PARAM_NAMES[STEP_PARAMS] = {
+    [SP_MASS] = "mass", [SP_ETA] = "eta", [SP_AUXILIARY_W] = "auxiliary_w", [SP_TUNNEL_FACTOR] = "tunnel_factor",
+    [SP_TRACTION] = "traction", [SP_C0] = "c0", [SP_C2] = "c2", [SP_V_TRANSITION] = "v_transition",
+    [SP_ADHESION] = "adhesion", [SP_ADHESIVE_FRACTION] = "adhesive_fraction", [SP_GAMMA] = "gamma",
+    [SP_GRAVITY] = "gravity", [SP_DIFFERENCE_SCHEME] = "difference_scheme", [SP_MIN_SPEED] = "min_speed",
+    [SP_MAX_GAP] = "max_gap", [SP_CONSTRAINT_SIGMA] = "constraint_sigma", [SP_EFFORT_TOLERANCE] = "effort_tolerance",
+    [SP_CRUISE_TOLERANCE] = "cruise_tolerance", [SP_EXCLUDE_BRAKING] = "exclude_braking",
+};
 #define SCHEME_FORWARD 0
 #define SCHEME_TRAPEZOID 2
 
@@ -713,12 +728,25 @@ typedef struct {
 } Sample;
 
 static void step_model(const double *p, StepModel *m) {
-    /* the order of model.StepModel.params() */
-    *m = (StepModel){.mass = p[0], .eta = p[1], .auxiliary_w = p[2], .tunnel_factor = p[3], .traction = p[4] != 0.0,
-                     .c0 = p[5], .c2 = p[6], .v_transition = p[7], .adhesion = p[8] != 0.0,
-                     .adhesive_fraction = p[9], .gamma = p[10], .gravity = p[11], .scheme = (int)p[12],
-                     .min_speed = p[13], .max_gap = p[14], .constraint_sigma = p[15], .effort_tolerance = p[16],
-                     .cruise_tolerance = p[17], .exclude_braking = p[18] != 0.0};
+    /* by the indices of STEP_PARAM_NAMES */
+    *m = (StepModel){.mass = p[SP_MASS], .eta = p[SP_ETA], .auxiliary_w = p[SP_AUXILIARY_W],
+                     .tunnel_factor = p[SP_TUNNEL_FACTOR], .traction = p[SP_TRACTION] != 0.0, .c0 = p[SP_C0],
+                     .c2 = p[SP_C2], .v_transition = p[SP_V_TRANSITION], .adhesion = p[SP_ADHESION] != 0.0,
+                     .adhesive_fraction = p[SP_ADHESIVE_FRACTION], .gamma = p[SP_GAMMA], .gravity = p[SP_GRAVITY],
+                     .scheme = (int)p[SP_DIFFERENCE_SCHEME], .min_speed = p[SP_MIN_SPEED], .max_gap = p[SP_MAX_GAP],
+                     .constraint_sigma = p[SP_CONSTRAINT_SIGMA], .effort_tolerance = p[SP_EFFORT_TOLERANCE],
+                     .cruise_tolerance = p[SP_CRUISE_TOLERANCE], .exclude_braking = p[SP_EXCLUDE_BRAKING] != 0.0};
+}
+
+static PyObject *step_model_dict(const StepModel *m) {
+    /* the fields as step_model read them, by name (the test that the names and the reads agree) */
+    return Py_BuildValue("{sdsdsdsdsdsdsdsdsdsdsdsdsdsdsdsdsdsdsd}", "mass", m->mass, "eta", m->eta, "auxiliary_w",
+                         m->auxiliary_w, "tunnel_factor", m->tunnel_factor, "traction", (double)m->traction, "c0",
+                         m->c0, "c2", m->c2, "v_transition", m->v_transition, "adhesion", (double)m->adhesion,
+                         "adhesive_fraction", m->adhesive_fraction, "gamma", m->gamma, "gravity", m->gravity,
+                         "difference_scheme", (double)m->scheme, "min_speed", m->min_speed, "max_gap", m->max_gap,
+                         "constraint_sigma", m->constraint_sigma, "effort_tolerance", m->effort_tolerance,
+                         "cruise_tolerance", m->cruise_tolerance, "exclude_braking", (double)m->exclude_braking);
 }
 
 static double step_force(const StepModel *m, double v, double power_consumed, double power_regenerated) {
@@ -965,7 +993,8 @@ static PyObject *window_new(PyTypeObject *type, PyObject *args, PyObject *kwargs
             memcpy(step_params, step_view.buf, sizeof(step_params));
         PyBuffer_Release(&step_view);
         if (!ok) {
-            PyErr_Format(PyExc_ValueError, "step_params: the %d values of StepModel.params()", STEP_PARAMS);
+            PyErr_Format(PyExc_ValueError, "step_params: the %d values of StepModel.params(STEP_PARAM_NAMES)",
+                         STEP_PARAMS);
             return NULL;
         }
     }
@@ -1310,7 +1339,26 @@ static PyTypeObject WindowType = {
     .tp_getset = window_getset,
 };
 
+static PyObject *kernel_read_step_params(PyObject *module, PyObject *arg) {
+    /* _read_step_params(step_params) -> dict: the step model as the Window reads it, by name */
+    (void)module;
+    Py_buffer view;
+    if (!float64_buffer(arg, &view, 1, "step_params"))
+        return NULL;
+    if (view.shape[0] != STEP_PARAMS) {
+        PyBuffer_Release(&view);
+        PyErr_Format(PyExc_ValueError, "step_params: %d values", STEP_PARAMS);
+        return NULL;
+    }
+    StepModel m;
+    step_model(view.buf, &m);
+    PyBuffer_Release(&view);
+    return step_model_dict(&m);
+}
+
 static PyMethodDef kernel_methods[] = {
+    {"_read_step_params", (PyCFunction)kernel_read_step_params, METH_O,
+     "_read_step_params(step_params) -> dict: the step model as the Window reads it, by name (tests)."},
     {"_restore", (PyCFunction)kernel_restore, METH_O, "_restore(state) -> Window: unpickling (see Window.__reduce__)."},
     {"fit", (PyCFunction)(void (*)(void))kernel_fit, METH_FASTCALL,
      "fit(xy, upper_tol, params, pattern, below_zero) -> (status, pattern, condition, theta0, theta1, theta2, "
@@ -1331,6 +1379,19 @@ PyMODINIT_FUNC PyInit__kernel(void) {
         return NULL;
     restore_function = PyObject_GetAttrString(module, "_restore"); /* held for the module's lifetime */
     if (restore_function == NULL) {
+        Py_DECREF(module);
+        return NULL;
+    }
+    PyObject *names = PyTuple_New(STEP_PARAMS);
+    for (Py_ssize_t i = 0; names != NULL && i < STEP_PARAMS; i++) {
+        PyObject *name = PyUnicode_FromString(STEP_PARAM_NAMES[i]);
+        if (name == NULL)
+            Py_CLEAR(names);
+        else
+            PyTuple_SET_ITEM(names, i, name);
+    }
+    if (names == NULL || PyModule_AddObject(module, "STEP_PARAM_NAMES", names) < 0) {
+        Py_XDECREF(names);
         Py_DECREF(module);
         return NULL;
     }

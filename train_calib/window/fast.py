@@ -110,7 +110,7 @@ class FastFit:
 
     def new_window(self, step: StepModel):
         """The C kernel's Window for the streaming calibrator (None: no kernel, or this config is not for it)."""
-        return _kernel.Window(self._params, step.params()) if self.compiled else None
+        return _kernel.Window(self._params, step.params(_kernel.STEP_PARAM_NAMES)) if self.compiled else None
 
     def fit_window(self, window, context: dict) -> WindowFit:
         """The fit of a streaming window: the kernel's Window (fitted in place) or calibrator._PyWindow.

@@ -15,6 +15,7 @@ y_k = f_k - g_k - a_k. The residual e_k times M is their E_k (eq. 8), in N.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -183,14 +184,39 @@ class StepModel:
         self.adhesive_fraction = train.adhesive_mass_fraction
         self.gamma = train.rotating_mass_factor
 
-    def params(self) -> np.ndarray:
-        """The step model as the C kernel's Window takes it (step_params; the order of _kernel.c's step_model)."""
+    def values(self) -> dict[str, float]:
+        """The step model by name, as floats (flags 0/1, the difference scheme its index): what the C kernel's Window
+        reads (``_kernel.STEP_PARAM_NAMES``)."""
         cfg = self.config
-        return np.array([self.mass, self.eta, self.auxiliary_w, self.tunnel_factor, float(self.traction), self.c0,
-                         self.c2, self.v_transition, float(self.adhesion), self.adhesive_fraction, self.gamma,
-                         physics.GRAVITY, float(DIFFERENCE_SCHEMES.index(cfg.difference_scheme)), cfg.min_speed,
-                         cfg.max_gap, cfg.constraint_sigma, cfg.effort_tolerance, cfg.cruise_tolerance,
-                         float(cfg.exclude_braking)])  # fmt: skip
+        return {
+            "mass": self.mass,
+            "eta": self.eta,
+            "auxiliary_w": self.auxiliary_w,
+            "tunnel_factor": self.tunnel_factor,
+            "traction": float(self.traction),
+            "c0": self.c0,
+            "c2": self.c2,
+            "v_transition": self.v_transition,
+            "adhesion": float(self.adhesion),
+            "adhesive_fraction": self.adhesive_fraction,
+            "gamma": self.gamma,
+            "gravity": physics.GRAVITY,
+            "difference_scheme": float(DIFFERENCE_SCHEMES.index(cfg.difference_scheme)),
+            "min_speed": cfg.min_speed,
+            "max_gap": cfg.max_gap,
+            "constraint_sigma": cfg.constraint_sigma,
+            "effort_tolerance": cfg.effort_tolerance,
+            "cruise_tolerance": cfg.cruise_tolerance,
+            "exclude_braking": float(cfg.exclude_braking),
+        }
+
+    def params(self, names: Sequence[str]) -> np.ndarray:
+        """The step model as an array in the order of ``names`` (the C kernel's ``STEP_PARAM_NAMES``): by name, so an
+        order changed on either side cannot misplace a value; ValueError unless the names are exactly ours."""
+        values = self.values()
+        if len(names) != len(values) or set(names) != set(values):
+            raise ValueError(f"step model names: the kernel has {sorted(names)}, StepModel.values() {sorted(values)}")
+        return np.array([values[name] for name in names])
 
     def force(self, v: float, power_consumed: float, power_regenerated: float) -> float:
         """Measured tractive force per effective mass (tractive_force / M), N/kg; NaN below min_speed."""

@@ -1,0 +1,45 @@
+"""The parts of the HMM regime model that the per-sample classifier (:mod:`.regimes`) and the whole-run filter
+(:mod:`.regimes_batch`) share: its constants, the paper's rule and the choice of the most probable regime. A module
+of its own so that neither of the two imports the other's internals (they used to import each other).
+
+Units: efforts and forces N/kg, accelerations m/s^2.
+"""
+
+from __future__ import annotations
+
+import math
+
+from ..regime_codes import BRAKING, COASTING, CRUISING, TRACTION
+from .config import RegimeConfig
+
+SQRT2 = math.sqrt(2.0)
+"""sqrt(2), for the normal cdf via erf."""
+LOG_SQRT_2PI = 0.5 * math.log(2.0 * math.pi)
+"""log sqrt(2 pi): the normal density's constant."""
+START_PRIOR = (0.85, 0.05, 0.05, 0.05)
+"""Probabilities of (TRACTION, CRUISING, COASTING, BRAKING) before the first moving sample: departing."""
+DEFAULT_W = 0.02
+"""r + g (N/kg) assumed before any computed-effort sample was seen (r0 of an EMU on level track)."""
+
+
+def rule(e: float, a: float, cfg: RegimeConfig) -> int:
+    """The paper's rule on effort e and acceleration a (not NaN)."""
+    tol_a = cfg.cruise_tolerance
+    if abs(e) <= cfg.effort_tolerance and not (cfg.hold_detection and abs(a) < abs(e) and abs(a) <= tol_a):
+        return COASTING
+    if abs(a) <= tol_a:
+        return CRUISING
+    return TRACTION if e > 0.0 else BRAKING
+
+
+def most_probable(p0: float, p1: float, p2: float, p3: float) -> int:
+    """The regime code of the largest of the weights of (TRACTION, CRUISING, COASTING, BRAKING); the first of equal
+    maxima."""
+    best, top = TRACTION, p0
+    if p1 > top:
+        best, top = CRUISING, p1
+    if p2 > top:
+        best, top = COASTING, p2
+    if p3 > top:
+        best = BRAKING
+    return best
