@@ -7,28 +7,13 @@ test/data/small_track.yaml, a train standing, accelerating at 0.5 m/s^2 and crui
 from __future__ import annotations
 
 import numpy as np
-import pytest
+import test_ingest
 
 from train_calib.ingest import GNSS, POWER, SPEED, GnssFix, Ingest, IngestConfig, PowerSample, SpeedSample
-from train_calib.track import load_track
-from train_calib.train import load_train
 
 NS = 1_000_000_000
 T0 = 1_700_000_000 * NS
-
-
-@pytest.fixture(scope="module")
-def track():
-    from repo_paths import DATA
-
-    return load_track(DATA / "small_track.yaml")
-
-
-@pytest.fixture(scope="module")
-def train():
-    from repo_paths import DATA
-
-    return load_train(DATA / "small_train.yaml")
+track, train = test_ingest.track, test_ingest.train  # the small track and train fixtures
 
 
 def _position(t: float) -> tuple[float, float]:

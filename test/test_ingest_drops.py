@@ -14,6 +14,7 @@ import re
 from pathlib import Path
 
 import pytest
+import test_ingest
 from test_ingest import NS, T0, Profile, events, fix_at
 
 from train_calib.ingest import (
@@ -28,22 +29,8 @@ from train_calib.ingest import (
     PowerSample,
     SpeedSample,
 )
-from train_calib.track import load_track
-from train_calib.train import load_train
 
-
-@pytest.fixture(scope="module")
-def track():
-    from repo_paths import DATA
-
-    return load_track(DATA / "small_track.yaml")
-
-
-@pytest.fixture(scope="module")
-def train():
-    from repo_paths import DATA
-
-    return load_train(DATA / "small_train.yaml")
+track, train = test_ingest.track, test_ingest.train  # the small track and train fixtures
 
 
 def _runs(ms) -> list[tuple[int, int]]:
