@@ -375,30 +375,52 @@ def assign_group(stretch: Stretch, previous: Stretch | None, merge_gap: float) -
         stretch.group = previous.group + 1
 
 
+def prior_information(prior: np.ndarray, P0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(P0^-1, P0^-1 prior): the prior in information form."""
+    info_matrix = np.linalg.inv(P0)
+    return info_matrix, info_matrix @ prior
+
+
+def add_coast(info: tuple[np.ndarray, np.ndarray], members: list[Stretch]) -> tuple[np.ndarray, np.ndarray]:
+    """The information plus that of one coast (its stretches share the common error): noise covariance
+    noise_var I + bias^2 tau tau^T, inverted by Sherman-Morrison."""
+    info_matrix, info_vector = info
+    A = np.vstack([st.A for st in members])
+    y = np.concatenate([st.y for st in members])
+    tau = np.concatenate([st.tau for st in members])
+    noise_var = max(st.noise_var for st in members)
+    bias = max(st.bias_std for st in members)
+    gain = bias * bias / (noise_var + bias * bias * float(tau @ tau))
+    a_tau = A.T @ tau
+    info_matrix = info_matrix + (A.T @ A - gain * np.outer(a_tau, a_tau)) / noise_var
+    info_vector = info_vector + (A.T @ y - gain * a_tau * float(tau @ y)) / noise_var
+    return info_matrix, info_vector
+
+
+def coasts_of(stretches: list[Stretch]) -> list[list[Stretch]]:
+    """The stretches grouped by coast, in order."""
+    groups: dict[int, list[Stretch]] = {}
+    for st in stretches:
+        groups.setdefault(st.group, []).append(st)
+    return list(groups.values())
+
+
+def solve_information(info: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """(mean, covariance) from the information form."""
+    cov = np.linalg.inv(info[0])
+    cov = 0.5 * (cov + cov.T)
+    return cov @ info[1], cov
+
+
 def posterior(prior: np.ndarray, P0: np.ndarray, stretches: list[Stretch]) -> tuple[np.ndarray, np.ndarray]:
     """Gaussian posterior of r given the prior and the stretches' equations (information form); the prior itself
     (copies) without stretches."""
     if not stretches:
         return prior.copy(), P0.copy()
-    info_matrix = np.linalg.inv(P0)
-    info_vector = info_matrix @ prior
-    groups: dict[int, list[Stretch]] = {}
-    for st in stretches:
-        groups.setdefault(st.group, []).append(st)
-    for members in groups.values():
-        A = np.vstack([st.A for st in members])
-        y = np.concatenate([st.y for st in members])
-        tau = np.concatenate([st.tau for st in members])
-        noise_var = max(st.noise_var for st in members)
-        bias = max(st.bias_std for st in members)
-        # noise covariance noise_var I + bias^2 tau tau^T, inverted by Sherman-Morrison
-        gain = bias * bias / (noise_var + bias * bias * float(tau @ tau))
-        a_tau = A.T @ tau
-        info_matrix = info_matrix + (A.T @ A - gain * np.outer(a_tau, a_tau)) / noise_var
-        info_vector = info_vector + (A.T @ y - gain * a_tau * float(tau @ y)) / noise_var
-    cov = np.linalg.inv(info_matrix)
-    cov = 0.5 * (cov + cov.T)
-    return cov @ info_vector, cov
+    info = prior_information(prior, P0)
+    for members in coasts_of(stretches):
+        info = add_coast(info, members)
+    return solve_information(info)
 
 
 def nonnegative(r: np.ndarray, cov: np.ndarray) -> np.ndarray:
@@ -508,6 +530,10 @@ class CoastRegression:
         self.r = self.prior.copy()
         self.covariance = self.P0.copy()
         self.stretches: list[Stretch] = []
+        # the information of the prior and of every coast that is over (a new stretch can only join the last one):
+        # each update adds the open coast to it instead of summing every coast again (a recording of hours)
+        self._closed_info = prior_information(self.prior, self.P0)
+        self._closed_count = 0  # stretches whose coast is in _closed_info
         self._t: list[float] = []
         self._v: list[float] = []
         self._g: list[float] = []
@@ -611,7 +637,7 @@ class CoastRegression:
                 st = stretch_equations(arr, k0, k1, cfg, self.prior, sv, self.tunnel_factor)
                 assign_group(st, self.stretches[-1] if self.stretches else None, 2.0 * window)
                 self.stretches.append(st)
-            r, cov = posterior(self.prior, self.P0, self.stretches)
+            r, cov = self._posterior()
             self.r, self.covariance = nonnegative(r, cov), cov
             self._used_until = float(arr.t[pieces[-1][1]])
             changed = True
@@ -628,6 +654,20 @@ class CoastRegression:
             keep_t = min(keep_t, float(arr.t[i - 1]) - window if i > 0 else float(arr.t[0]))
         self._keep_from(int(np.searchsorted(arr.t, keep_t)))
         return changed
+
+    def _posterior(self) -> tuple[np.ndarray, np.ndarray]:
+        """posterior() of every stretch so far: the closed coasts' cached information plus the last coast's (the
+        same additions in the same order, so the same numbers)."""
+        open_group = self.stretches[-1].group
+        first_open = self._closed_count
+        while self.stretches[first_open].group != open_group:
+            end = first_open
+            while self.stretches[end].group == self.stretches[first_open].group:
+                end += 1
+            self._closed_info = add_coast(self._closed_info, self.stretches[first_open:end])
+            first_open = end
+        self._closed_count = first_open
+        return solve_information(add_coast(self._closed_info, self.stretches[first_open:]))
 
     def _new_pieces(
         self, arr: RunArrays, bounds: list[tuple[int, int, int, int]], decided: float, period: float
