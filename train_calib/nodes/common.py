@@ -206,7 +206,8 @@ def _coerced_override(spec: ParamSpec, override: Parameter) -> Parameter:
 
 
 class RateMeter:
-    """Messages per second of node-clock time (sim time under use_sim_time) between two reports.
+    """Messages per second between two reports, in the reports' time base: the node clock, or under use_sim_time
+    the inputs' stamps (the data's time, as the diagnostics schedule).
 
     Counting costs nothing per message (no clock read); the time of the last message is known to the
     report period, which is all the input-timeout check needs.
@@ -285,6 +286,7 @@ class TrainCalibNode(Node):
         self._diag_pub = self.create_publisher(DiagnosticArray, DIAGNOSTICS_TOPIC, DIAGNOSTICS_QOS)
         # the node clock's timer on board; under sim time the data's stamps (diagnostics_schedule: rate-independent)
         self._diag_schedule: DiagnosticsSchedule | None = None
+        self._data_now_ns: int | None = None  # under the schedule: the latest input stamp, the reports' time base
         self._diag_timer = None
         self._start_diagnostics(node_cfg.diagnostics_period)
         self._progress_pub = None
@@ -417,8 +419,10 @@ class TrainCalibNode(Node):
             schedule = self._diag_schedule
             if schedule is not None and msg is not None:
                 stamp = getattr(getattr(msg, "header", None), "stamp", None)  # every input has a header; be safe
-                if stamp is not None and schedule.due(stamp.sec * 1_000_000_000 + stamp.nanosec):
-                    self.publish_diagnostics()
+                if stamp is not None:
+                    self._data_now_ns = stamp_ns = stamp.sec * 1_000_000_000 + stamp.nanosec
+                    if schedule.due(stamp_ns):
+                        self.publish_diagnostics()
             if self._progress_pub is not None:
                 self.publish_progress()
 
@@ -546,7 +550,10 @@ class TrainCalibNode(Node):
 
     def diagnostic_status(self) -> DiagnosticStatus:
         self.refresh_counters()
-        now_ns = self.get_clock().now().nanoseconds
+        # the input rates and timeouts in the time the reports follow: the data's stamps under the schedule (the sim
+        # clock lags the data at --rate 0, so a rate over it was not the data's), the node clock otherwise
+        data_now = self._data_now_ns if self._diag_schedule is not None else None
+        now_ns = data_now if data_now is not None else self.get_clock().now().nanoseconds
         timeout_ns = self.config(NodeConfig).input_timeout * 1e9
         values: list[KeyValue] = []
         add = values.append
