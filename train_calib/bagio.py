@@ -14,10 +14,15 @@ from functools import lru_cache
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import yaml
 
 from .errors import BagError
 from .paths import msg_dir
+
+GNSS_FRAME = "gnss"  # frame_id of the input messages written by write_input_bag
+SPEED_FRAME = "base_link"
+POWER_FRAME = "traction"
 
 GNSS_TOPIC = "/gnss/fix"
 SPEED_TOPIC = "/train/speed"
@@ -122,6 +127,66 @@ class BagWriter:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+def write_input_bag(
+    path: str | Path,
+    *,
+    gnss_t_ns: Any,
+    lat: Any,
+    lon: Any,
+    altitude: Any,
+    gnss_sigma_m: float,
+    speed_t_ns: Any,
+    speed_ms: Any,
+    gnss_ok: Any = None,
+    power: tuple[Any, Any, Any] | None = None,
+) -> None:
+    """An input bag (the input topics of INTERFACES.md) from sample arrays, in stamp order (log time = stamp; at
+    one stamp the fix, then the speed, then the power). Stamps in ns, speeds m/s, power (t_ns, consumed W,
+    regenerated W) declares the power topic when given. A fix whose ``gnss_ok`` is False is written as no fix
+    (status -1, altitude NaN, covariance unknown); the others with the covariance of ``gnss_sigma_m`` per horizontal
+    axis (twice that vertically). The simulator's and ``train-calib import``'s writer."""
+    NavSatFix = msg_class("sensor_msgs/msg/NavSatFix")
+    NavSatStatus = msg_class("sensor_msgs/msg/NavSatStatus")
+    TwistStamped = msg_class("geometry_msgs/msg/TwistStamped")
+    Twist = msg_class("geometry_msgs/msg/Twist")
+    Vector3 = msg_class("geometry_msgs/msg/Vector3")
+    TractionPower = msg_class("train_calib_msgs/msg/TractionPower")
+    var = float(gnss_sigma_m) ** 2
+    cov_fix = np.array([var, 0, 0, 0, var, 0, 0, 0, 4.0 * var], dtype=float)
+    cov_none = np.zeros(9)
+    zero = Vector3(x=0.0, y=0.0, z=0.0)
+    oks = [True] * len(gnss_t_ns) if gnss_ok is None else [bool(x) for x in gnss_ok]
+    items: list[tuple[int, int, Any]] = []
+    for t, la, lo, alt, ok in zip(gnss_t_ns, lat, lon, altitude, oks):
+        msg = NavSatFix(
+            header=make_header(int(t), GNSS_FRAME),
+            status=NavSatStatus(status=0 if ok else -1, service=1),
+            latitude=float(la),
+            longitude=float(lo),
+            altitude=float(alt) if ok else float("nan"),
+            position_covariance=cov_fix if ok else cov_none,
+            position_covariance_type=2 if ok else 0,
+        )
+        items.append((int(t), 0, msg))
+    for t, v in zip(speed_t_ns, speed_ms):
+        twist = Twist(linear=Vector3(x=float(v), y=0.0, z=0.0), angular=zero)
+        items.append((int(t), 1, TwistStamped(header=make_header(int(t), SPEED_FRAME), twist=twist)))
+    if power is not None:
+        for t, consumed, regenerated in zip(*power):
+            msg = TractionPower(
+                header=make_header(int(t), POWER_FRAME),
+                power_consumed=float(consumed),
+                power_regenerated=float(regenerated),
+            )
+            items.append((int(t), 2, msg))
+    items.sort(key=lambda it: (it[0], it[1]))
+    topics = [GNSS_TOPIC, SPEED_TOPIC, POWER_TOPIC]
+    declared = {t: INPUT_TOPICS[t] for t in topics[: 3 if power is not None else 2]}
+    with BagWriter(path, declared) as writer:
+        for t_ns, k, msg in items:
+            writer.write(topics[k], msg, t_ns)
 
 
 @dataclass

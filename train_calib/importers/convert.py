@@ -6,8 +6,6 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import numpy as np
-
 from .. import bagio
 from .checks import SpeedCheck, check_speed_units, refuse, sort_streams
 from .csvlog import read_csv
@@ -16,9 +14,6 @@ from .gpx import read_gpx
 from .nmea import read_nmea
 from .records import ImportFormatError, RowLog, Streams
 
-GNSS_FRAME = "gnss"
-SPEED_FRAME = "base_link"
-POWER_FRAME = "traction"
 DEFAULT_START_NS = 1_577_836_800_000_000_000  # 2020-01-01T00:00:00Z: origin of times in s since the log's start
 
 
@@ -124,38 +119,8 @@ def import_logs(
 
 def write_bag(streams: Streams, path: Path, gnss_sigma_m: float) -> None:
     """The input topics of INTERFACES.md in stamp order (log time = stamp), as the simulator writes them."""
-    NavSatFix = bagio.msg_class("sensor_msgs/msg/NavSatFix")
-    NavSatStatus = bagio.msg_class("sensor_msgs/msg/NavSatStatus")
-    TwistStamped = bagio.msg_class("geometry_msgs/msg/TwistStamped")
-    Twist = bagio.msg_class("geometry_msgs/msg/Twist")
-    Vector3 = bagio.msg_class("geometry_msgs/msg/Vector3")
-    TractionPower = bagio.msg_class("train_calib_msgs/msg/TractionPower")
-    var = gnss_sigma_m**2
-    cov = np.array([var, 0, 0, 0, var, 0, 0, 0, 4.0 * var], dtype=float)
-    zero = Vector3(x=0.0, y=0.0, z=0.0)
-    items: list[tuple[int, int, object]] = []
-    for t, lat, lon, alt in zip(streams.gnss_t_ns, streams.lat, streams.lon, streams.alt):
-        msg = NavSatFix(
-            header=bagio.make_header(int(t), GNSS_FRAME),
-            status=NavSatStatus(status=0, service=1),
-            latitude=float(lat),
-            longitude=float(lon),
-            altitude=float(alt),
-            position_covariance=cov,
-            position_covariance_type=2,
-        )
-        items.append((int(t), 0, msg))
-    for t, v in zip(streams.speed_t_ns, streams.speed_ms):
-        twist = Twist(linear=Vector3(x=float(v), y=0.0, z=0.0), angular=zero)
-        items.append((int(t), 1, TwistStamped(header=bagio.make_header(int(t), SPEED_FRAME), twist=twist)))
-    for t, pc, pr in zip(streams.power_t_ns, streams.consumed_w, streams.regenerated_w):
-        msg = TractionPower(
-            header=bagio.make_header(int(t), POWER_FRAME), power_consumed=float(pc), power_regenerated=float(pr)
-        )
-        items.append((int(t), 2, msg))
-    items.sort(key=lambda it: (it[0], it[1]))
-    topics = [bagio.GNSS_TOPIC, bagio.SPEED_TOPIC, bagio.POWER_TOPIC]
-    declared = {t: bagio.INPUT_TOPICS[t] for t in topics[: 3 if streams.power_t_ns.size else 2]}
-    with bagio.BagWriter(path, declared) as writer:
-        for t_ns, k, msg in items:
-            writer.write(topics[k], msg, t_ns)
+    bagio.write_input_bag(
+        path, gnss_t_ns=streams.gnss_t_ns, lat=streams.lat, lon=streams.lon, altitude=streams.alt,
+        gnss_sigma_m=gnss_sigma_m, speed_t_ns=streams.speed_t_ns, speed_ms=streams.speed_ms,
+        power=(streams.power_t_ns, streams.consumed_w, streams.regenerated_w) if streams.power_t_ns.size else None,
+    )  # fmt: skip

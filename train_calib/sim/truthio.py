@@ -27,9 +27,6 @@ from .. import bagio
 from ..errors import BagError
 from .run import TRUTH_COLUMNS, SimulatedRun, Trajectory
 
-GNSS_FRAME = "gnss"
-SPEED_FRAME = "base_link"
-POWER_FRAME = "traction"
 _INT_COLUMNS = {"t_ns": np.int64, "regime": np.uint8}
 
 
@@ -68,52 +65,12 @@ def write_run(run: SimulatedRun, out_dir: str | Path, name: str, *, dense: bool 
 
 def write_bag(run: SimulatedRun, path: Path) -> None:
     """The input topics of the run, in stamp order (log time = stamp)."""
-    NavSatFix = bagio.msg_class("sensor_msgs/msg/NavSatFix")
-    NavSatStatus = bagio.msg_class("sensor_msgs/msg/NavSatStatus")
-    TwistStamped = bagio.msg_class("geometry_msgs/msg/TwistStamped")
-    Twist = bagio.msg_class("geometry_msgs/msg/Twist")
-    Vector3 = bagio.msg_class("geometry_msgs/msg/Vector3")
-    TractionPower = bagio.msg_class("train_calib_msgs/msg/TractionPower")
-    var = float(run.gnss.sigma_m) ** 2
-    cov_fix = np.array([var, 0, 0, 0, var, 0, 0, 0, 4.0 * var], dtype=float)
-    cov_none = np.zeros(9)
-    zero = Vector3(x=0.0, y=0.0, z=0.0)
-    items: list[tuple[int, int, Any]] = []
-    g = run.gnss
-    for i in range(g.t_ns.size):
-        ok = int(g.status[i]) >= 0
-        msg = NavSatFix(
-            header=bagio.make_header(int(g.t_ns[i]), GNSS_FRAME),
-            status=NavSatStatus(status=0 if ok else -1, service=1),
-            latitude=float(g.lat[i]),
-            longitude=float(g.lon[i]),
-            altitude=0.0 if ok else float("nan"),
-            position_covariance=cov_fix if ok else cov_none,
-            position_covariance_type=2 if ok else 0,
-        )
-        items.append((int(g.t_ns[i]), 0, msg))
-    sp = run.speed
-    for i in range(sp.t_ns.size):
-        msg = TwistStamped(
-            header=bagio.make_header(int(sp.t_ns[i]), SPEED_FRAME),
-            twist=Twist(linear=Vector3(x=float(sp.v_ms[i]), y=0.0, z=0.0), angular=zero),
-        )
-        items.append((int(sp.t_ns[i]), 1, msg))
-    if run.power is not None:
-        pw = run.power
-        for i in range(pw.t_ns.size):
-            msg = TractionPower(
-                header=bagio.make_header(int(pw.t_ns[i]), POWER_FRAME),
-                power_consumed=float(pw.consumed_w[i]),
-                power_regenerated=float(pw.regenerated_w[i]),
-            )
-            items.append((int(pw.t_ns[i]), 2, msg))
-    items.sort(key=lambda it: (it[0], it[1]))
-    topics = [bagio.GNSS_TOPIC, bagio.SPEED_TOPIC, bagio.POWER_TOPIC]
-    declared = {t: bagio.INPUT_TOPICS[t] for t in topics[: 3 if run.power is not None else 2]}
-    with bagio.BagWriter(path, declared) as writer:
-        for t_ns, k, msg in items:
-            writer.write(topics[k], msg, t_ns)
+    g, sp, pw = run.gnss, run.speed, run.power
+    bagio.write_input_bag(
+        path, gnss_t_ns=g.t_ns, lat=g.lat, lon=g.lon, altitude=np.zeros(g.t_ns.size), gnss_ok=g.status >= 0,
+        gnss_sigma_m=g.sigma_m, speed_t_ns=sp.t_ns, speed_ms=sp.v_ms,
+        power=(pw.t_ns, pw.consumed_w, pw.regenerated_w) if pw is not None else None,
+    )  # fmt: skip
 
 
 @dataclass
