@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import Any
 
 from .bagio import GNSS_TOPIC, INPUT_TOPICS, POWER_TOPIC, SPEED_TOPIC, iter_bag
+from .cdr_inputs import read_input_events
 from .estimation import (
     FeatureAccumulator,
     FeatureConfig,
@@ -302,10 +303,17 @@ def bag_messages(bag: str | Path) -> Iterator[tuple[str, Any]]:
 
 
 def run_bag(bag: str | Path, track: Track, train: TrainSpec, **configs: Any) -> PipelineOutput:
-    """The whole chain on a bag's inputs, as the graph would run it."""
+    """The whole chain on a bag's inputs, as the graph would run it. The inputs are decoded straight to the
+    ingest's records (:func:`cdr_inputs.read_input_events`), or, for a bag that is not plain and well formed,
+    through ``bag_messages`` (salvage, rosbags decoding and its errors); both give the same events."""
     p = Pipeline(track, train, **configs)
-    for topic, msg in bag_messages(bag):
-        p.add_message(topic, msg)
+    events = read_input_events(bag)
+    if events is None:
+        for topic, msg in bag_messages(bag):
+            p.add_message(topic, msg)
+    else:
+        for event in events:
+            p.add_event(event)
     return p.end_of_input()
 
 
