@@ -165,6 +165,11 @@ class Ingest:
         yield from self.flush()
 
     def add(self, event: GnssFix | SpeedSample | PowerSample) -> list[Measurement]:
+        kind = type(event)  # the exact types first (one dict look-up a sample), then their subclasses
+        if kind is SpeedSample:
+            return self.add_speed(event)  # type: ignore[arg-type]
+        if kind is GnssFix:
+            return self.add_fix(event)  # type: ignore[arg-type]
         if isinstance(event, SpeedSample):
             return self.add_speed(event)
         if isinstance(event, GnssFix):
@@ -187,6 +192,8 @@ class Ingest:
         return reason
 
     def _update_checks(self) -> None:
+        if not self.checks.queue:  # no fix waits for the odometer (checks.update would find nothing)
+            return
         changes = self.checks.update()
         if changes is NO_CHANGE:
             return
@@ -200,8 +207,10 @@ class Ingest:
         if reason is None:
             stats.accepted[stream] += 1
             stats.consecutive_dropped[stream] = 0
-        else:
-            stats.drop(stream, reason)
+            if self._reset_watch.behind:
+                self._reset_watch.clear()  # a sample of the current time base: no clock reset
+            return self._release()
+        stats.drop(stream, reason)
         if reason in (STALE, OUT_OF_ORDER):
             if self._reset_watch.observe(stream, event, reason, self.clock):
                 return self._clock_reset()

@@ -65,9 +65,11 @@ class TimeBase:
         assert self.newest_ns is not None
         if self.newest_ns - t_ns >= self.settings.pairing_wait_ns:
             return True
-        if not self._stream_ready(GNSS, t_ns, required=True):
+        latest = self.latest
+        gnss = latest.get(GNSS)
+        if not (gnss is not None and gnss >= t_ns) and not self._stream_ready(GNSS, t_ns, required=True):
             return False
-        return self._stream_ready(POWER, t_ns, required=False)
+        return POWER not in latest or self._stream_ready(POWER, t_ns, required=False)
 
     def _stream_ready(self, stream: str, t: int, required: bool) -> bool:
         latest = self.latest.get(stream)
