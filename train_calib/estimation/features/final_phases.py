@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
+from functools import partial
 
 import numpy as np
 
@@ -14,11 +15,13 @@ from ...regime_codes import BRAKING, COASTING, UNKNOWN
 from ..config import FeatureConfig
 from ..records import EFFORT_COMPUTED, EFFORT_POWER
 from .boundaries import Change, Point
-from .phases import Phase, TailPoint, hold_tail
+from .phases import _T, Phase, TailPoint, hold_tail
 from .rules import opposing_force
 
 _NAN = math.nan
 _FINAL = (COASTING, BRAKING)
+_PT = Point._fields.index("t")
+_tail_point = partial(tuple.__new__, TailPoint)  # TailPoint((t, s, u)) without the Python-level __new__
 
 
 class FinalPhases:
@@ -82,7 +85,11 @@ class FinalPhases:
 
     def step(self, cur: Point, regime: int, effort: float) -> None:
         """One step from the last sample to ``cur``, labelled ``regime`` (UNKNOWN when standing); ``effort``: its
-        published effort (with ``cur.src`` it gives w = r + g, ``opposing_force``)."""
+        published effort (with ``cur.src`` it gives w = r + g, ``opposing_force``).
+
+        The per-step work (the open phase extended, the moving sample kept for the changes to come and given to
+        the open ones, the old samples forgotten) is written out here, not in helpers: this runs once a sample in
+        the feature node and in the whole-run path."""
         t, s, _, accel, v, src = cur
         t_prev, s_prev, r_prev = self._prev
         self._prev = (t, s, regime)
@@ -90,15 +97,44 @@ class FinalPhases:
         if dt > 0.0 and math.isfinite(accel):
             self._u += accel * dt
         moving = v >= self._standstill
-        if not moving or regime != r_prev or (regime in _FINAL and self._last[regime] is None):
+        last = self._last
+        if not moving or regime != r_prev or (regime in _FINAL and last[regime] is None):
             self._locate_change(t_prev, s_prev, r_prev, cur, regime, moving)  # (a no-op on the other steps)
         if not moving and regime == BRAKING:
             regime = UNKNOWN  # the step the train stopped in: its braking ended at the stop located above
-        if regime in _FINAL:
-            self._extend(self._last[regime], cur, regime, dt, effort)
+        if regime in _FINAL:  # the step extends the open phase of its regime; it is the final one once long enough
+            ph = last[regime]
+            ph.last_t, ph.last_s = t, s
+            if dt > 0.0:
+                ph.labelled += dt
+            if regime == COASTING:
+                tail = ph.tail
+                tail.append(_tail_point((t, s, self._u)))
+                t_old = t - self._hold_window
+                while tail[0][_T] < t_old:
+                    tail.popleft()
+                w = opposing_force(effort, accel, src)
+                if math.isfinite(w):
+                    ph.w_last = w
+                minimum = self._min_coast
+            else:
+                minimum = self._min_brake
+            if ph.labelled >= minimum and self.final[regime] is not ph:
+                self.final[regime] = ph
+                if regime == COASTING:
+                    self._coasts = [*self._coasts[-2:], ph]
         if src == EFFORT_POWER and self._power:
             self._traction_t = t
-        self._collect(cur, moving, dt)
+        hist = self._hist
+        if moving:  # kept for the changes to come, and given to the open ones
+            hist.append(cur)
+            if self._open:
+                for ch in self._open:
+                    ch.add(cur)
+                self._open = [ch for ch in self._open if not ch.closed]
+        t_old = t - self._span - 5.0 * max(dt, 0.0)
+        while hist and hist[0][_PT] < t_old:
+            hist.popleft()
 
     def _locate_change(self, t_prev: float, s_prev: float, r_prev: int, cur: Point, r: int, moving: bool) -> None:
         """End or start the phases at a change of regime (r_prev to r) into or out of a final-phase regime, or at
@@ -122,42 +158,6 @@ class FinalPhases:
                     last[r] = Phase(ch, t_prev, s_prev)
         elif r in _FINAL and last[r] is None:
             last[r] = Phase(None, t_prev, s_prev)  # the first step of the run
-
-    def _extend(self, ph: Phase, cur: Point, r: int, dt: float, effort: float) -> None:
-        """Add the step ending at ``cur`` to the open phase ``ph`` of regime r; it becomes the final one of its
-        regime once long enough."""
-        ph.last_t, ph.last_s = cur.t, cur.s
-        if dt > 0.0:
-            ph.labelled += dt
-        if r == COASTING:
-            tail = ph.tail
-            tail.append(TailPoint(cur.t, cur.s, self._u))
-            t_old = cur.t - self._hold_window
-            while tail[0].t < t_old:
-                tail.popleft()
-            w = opposing_force(effort, cur.accel, cur.src)
-            if math.isfinite(w):
-                ph.w_last = w
-            minimum = self._min_coast
-        else:
-            minimum = self._min_brake
-        if ph.labelled >= minimum and self.final[r] is not ph:
-            self.final[r] = ph
-            if r == COASTING:
-                self._coasts = [*self._coasts[-2:], ph]
-
-    def _collect(self, cur: Point, moving: bool, dt: float) -> None:
-        """Keep the moving sample for the changes to come and give it to the open ones; forget the old samples."""
-        hist = self._hist
-        if moving:
-            hist.append(cur)
-            if self._open:
-                for ch in self._open:
-                    ch.add(cur)
-                self._open = [ch for ch in self._open if not ch.closed]
-        t_old = cur.t - self._span - 5.0 * max(dt, 0.0)
-        while hist and hist[0].t < t_old:
-            hist.popleft()
 
     def _change(
         self, kind: str, t_prev: float, t: float, s: float, brake: Phase | None, old: int = UNKNOWN, new: int = UNKNOWN

@@ -17,6 +17,7 @@ from .boundaries import fit_speed, new_point
 from .brake_rates import BrakeRates, Moments
 from .final_phases import FinalPhases
 from .record import FeatureParts, Features, fill
+from .rules import accelerating_traction, in_effort_window, in_power_window, labelled_moving
 
 
 class FeatureAccumulator:
@@ -49,51 +50,45 @@ class FeatureAccumulator:
         self._final = FinalPhases(self.config)
 
     def update(self, sample: EstimateSample, regime: int) -> bool:
-        """Add one estimate with its regime; True when the regime changed (publish the features)."""
-        v = float(sample.v)
-        return self._add(
-            int(sample.stamp_ns),
-            int(sample.run_id),
-            float(sample.s),
-            v,
-            float(sample.effort),
-            float(sample.acceleration),
-            int(regime),
-            fit_speed(v, float(getattr(sample, "v_measured", math.nan))),
-            int(getattr(sample, "effort_source", EFFORT_COMPUTED)),
-        )
+        """Add one estimate with its regime; True when the regime changed (publish the features).
 
-    def _add(
-        self,
-        stamp: int,
-        run_id: int,
-        s: float,
-        v: float,
-        effort: float,
-        accel: float,
-        regime: int,
-        v_fit: float,
-        src: int = EFFORT_COMPUTED,
-    ) -> bool:
-        """v: filtered speed; v_fit: the speed the phase changes are located on (fit_speed), m/s; src: the effort
-        source (EFFORT_*)."""
+        Per step: v the filtered speed, v_fit the speed the phase changes are located on (``fit_speed``), m/s; src
+        the effort source (EFFORT_*). (One method, no per-sample helpers: it runs once a sample.)"""
+        stamp, run_id, s, v = int(sample.stamp_ns), int(sample.run_id), float(sample.s), float(sample.v)
+        effort, accel, regime = float(sample.effort), float(sample.acceleration), int(regime)
+        v_fit = fit_speed(v, float(getattr(sample, "v_measured", math.nan)))
+        src = int(getattr(sample, "effort_source", EFFORT_COMPUTED))
         t = stamp * 1e-9
         if run_id != self._run_id:
             self._start_run(stamp, run_id, t, s, v, regime, v_fit)
             return True
         t_prev, dt = self._t, t - self._t
         v_mid = 0.5 * (self._v + v)
-        if not rules.labelled_moving(regime, v_mid, self.config.standstill_speed):
+        cfg = self.config
+        if not labelled_moving(regime, v_mid, cfg.standstill_speed):
             regime = UNKNOWN
-        if dt > 0.0:
-            self._count_step(t, v, v_mid, regime, effort, accel, dt)
+        if dt > 0.0:  # a step of positive duration: its time share, effort fit and power, or brake rate
+            self._shares[regime] += dt
+            if accelerating_traction(regime, accel):
+                if in_effort_window(v_mid, cfg):
+                    f = self._fit
+                    f[0] += 1
+                    f[1] += v_mid
+                    f[2] += effort
+                    f[3] += v_mid * v_mid
+                    f[4] += v_mid * effort
+                if in_power_window(v_mid, cfg):
+                    self._power.add(effort * v_mid)
+            elif regime == BRAKING:
+                self._brake_sample(t, v, accel, dt)
         if regime == CRUISING or self._regime == CRUISING:
             self._cruise_step(t_prev, v, regime, dt)
         self._final.step(new_point((t, s, v_fit, accel, v, src)), regime, effort)
+        brake = self._brake
         if self._regime == BRAKING and regime != BRAKING:
-            self._brake.end_run(self._final.latest)
-        else:
-            self._brake.settle()
+            brake.end_run(self._final.latest)
+        elif brake.closing:
+            brake.settle()  # (nothing to settle without ended runs waiting)
         changed = regime != self._regime
         self._stamp, self._t, self._s, self._v, self._regime = stamp, t, s, v, regime
         return changed
@@ -106,29 +101,15 @@ class FeatureAccumulator:
         self._regime = regime if v >= self.config.standstill_speed else UNKNOWN
         self._final.first(t, s, v, v_fit, self._regime)
 
-    def _count_step(
-        self, t: float, v: float, v_mid: float, regime: int, effort: float, accel: float, dt: float
-    ) -> None:
-        """A step of positive duration: its time share, effort fit and power, or brake rate."""
-        self._shares[regime] += dt
-        if rules.accelerating_traction(regime, accel):
-            if rules.in_effort_window(v_mid, self.config):
-                f = self._fit
-                f[0] += 1
-                f[1] += v_mid
-                f[2] += effort
-                f[3] += v_mid * v_mid
-                f[4] += v_mid * effort
-            if rules.in_power_window(v_mid, self.config):
-                self._power.add(effort * v_mid)
-        elif regime == BRAKING:
-            if self._regime != BRAKING:
-                self._brake_first_t = t
-            window = self.config.brake_window
-            if rules.brake_settled(t, self._brake_first_t, window):
-                i, counts = self._steps.of_brake_sample(v, accel, dt, window)
-                if counts:
-                    self._brake.add(t, i, -accel)
+    def _brake_sample(self, t: float, v: float, accel: float, dt: float) -> None:
+        """A braking step of positive duration: its brake rate, once settled and held in its speed step."""
+        if self._regime != BRAKING:
+            self._brake_first_t = t
+        window = self.config.brake_window
+        if rules.brake_settled(t, self._brake_first_t, window):
+            i, counts = self._steps.of_brake_sample(v, accel, dt, window)
+            if counts:
+                self._brake.add(t, i, -accel)
 
     def _cruise_step(self, t_prev: float, v: float, regime: int, dt: float) -> None:
         """Collect the cruising phase's samples; close it at the step after it (t_prev: its last sample)."""
