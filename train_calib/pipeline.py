@@ -250,17 +250,22 @@ class Pipeline:
         """What regime_node publishes, then what feature_node and window_calib_node do with each sample's phase
         (the paper's regime notion, which the features and the window method are built on)."""
         out = self.out
+        held, features, window = self._measurements_held, self.features, self.window
         for e, regime, phase in triples:
-            m, _ = self._measurements_held.popleft()  # e's measurement (those without an estimate went before)
+            m, _ = held.popleft()  # e's measurement (those without an estimate went before)
             out.regimes.append(
                 RegimeRecord(
                     e.stamp_ns, e.run_id, regime, e.s, e.v, e.effort, e.acceleration, e.v_measured, e.effort_source,
                     phase,
                 )
             )  # fmt: skip
-            out.features += self.features.update(e, phase)
-            self._window(m, phase)
-            self._release_unregimed()
+            published = features.update(e, phase)
+            if published:
+                out.features += published
+            if window is not None:
+                self._window(m, phase)
+            if held and not held[0][1]:
+                self._release_unregimed()
 
     def _release_unregimed(self) -> None:
         """The measurements without an estimate now at the front of the queue go to the window without a regime."""
@@ -312,8 +317,10 @@ def run_bag(bag: str | Path, track: Track, train: TrainSpec, **configs: Any) -> 
         for topic, msg in bag_messages(bag):
             p.add_message(topic, msg)
     else:
+        add, add_measurement = p.ingest.add, p.add_measurement  # (add_event's loop, written out)
         for event in events:
-            p.add_event(event)
+            for m in add(event):
+                add_measurement(m)
     return p.end_of_input()
 
 
