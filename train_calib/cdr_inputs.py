@@ -37,12 +37,6 @@ _U64 = struct.Struct("<Q")
 _CHUNK = struct.Struct("<QQQII")  # message start and end time, uncompressed size and crc, compression length
 _RECORD = struct.Struct("<BQ")  # opcode, content length
 _MESSAGE = struct.Struct("<HIQQ")  # channel id, sequence, log time, publish time
-_HEADER = struct.Struct("<iII")  # stamp sec (int32), nanosec (uint32), frame_id length (with its NUL)
-_STATUS = struct.Struct("<b")
-_D1 = struct.Struct("<d")
-_D2 = struct.Struct("<2d")
-_D3 = struct.Struct("<3d")
-_D9 = struct.Struct("<9d")
 
 
 class _Unusable(Exception):
@@ -116,7 +110,7 @@ def _chunk_events(data: bytes, offset: int, kinds: dict[int, int], decoder: _Dec
     out: list[tuple[int, Event]] = []
     pos = 0
     unpack_record, unpack_message = _RECORD.unpack_from, _MESSAGE.unpack_from
-    decode = (decoder.fix, decoder.speed, decoder.power)
+    decode = decoder.by_kind
     while pos < n:
         if pos + 9 > n:
             raise _Unusable
@@ -216,63 +210,69 @@ def _check_schema(buf: bytes, pos: int, end: int) -> None:
 
 
 class _Decoder:
-    """The fields the ingest reads of the three input types at their little-endian CDR offsets, with the checks
-    ``rosbags`` makes (string length and terminator, enough bytes, no more than 3 bytes of padding after)."""
+    """The three input types from their little-endian CDR bytes, with the checks ``rosbags`` makes (string length
+    and terminator, enough bytes, no more than 3 bytes of padding after; a frame_id is UTF-8).
+
+    The layout of a message is fixed once its frame_id's length is known: one ``struct`` per (type, length)
+    reads every field in one call (the generic deserialiser walks the message field by field)."""
 
     def __init__(self) -> None:
-        self._frames: set[bytes] = set()  # frame_ids seen (each checked once as UTF-8, as rosbags decodes it)
+        self._frames: set[bytes] = set()  # frame_ids seen (with their NUL), each checked once as UTF-8
+        self._layouts: dict[tuple[int, int], tuple[struct.Struct, int]] = {}
+        self.by_kind = (self.fix, self.speed, self.power)
 
-    def _header(self, buf: bytes, pos: int, end: int) -> tuple[int, int]:
-        """(stamp ns, CDR position after the header) of the message at pos (its 4-byte encapsulation first)."""
-        if end - pos < 16 or buf[pos : pos + 2] != b"\x00\x01":
-            raise _Unusable  # not little-endian CDR (or too short): the generic path decodes or raises
-        sec, nanosec, length = _HEADER.unpack_from(buf, pos + 4)
-        stop = pos + 16 + length  # the frame_id's end
-        if length < 1 or stop > end or buf[stop - 1] != 0:
+    def _layout(self, kind: int, length: int) -> tuple[struct.Struct, int]:
+        """(struct, message size in bytes) of type ``kind`` with a frame_id of ``length`` bytes (with its NUL)."""
+        layout = self._layouts.get((kind, length))
+        if layout is None:
+            if length < 1:
+                raise _Unusable
+            cdr = 12 + length  # header: stamp sec, nanosec, frame_id (uint32 length + bytes); offsets after the
+            head = f"<2s2xiII{length}s"  # 4-byte encapsulation
+            if kind == 0:  # NavSatStatus (int8 status, uint16 service), latitude, longitude, altitude,
+                service = (cdr + 2) & -2  # covariance[9] (aligned to 8), uint8 covariance type
+                floats = (service + 2 + 7) & -8
+                fmt = f"{head}b{service - cdr - 1}xH{floats - service - 2}x3d9dB"
+                end = floats + 97
+            else:  # twist (linear and angular Vector3) or the two powers, aligned to 8
+                floats = (cdr + 7) & -8
+                fmt = f"{head}{floats - cdr}x{6 if kind == 1 else 2}d"
+                end = floats + (48 if kind == 1 else 16)
+            layout = self._layouts[(kind, length)] = (struct.Struct(fmt), 4 + end)
+        return layout
+
+    def _values(self, kind: int, buf: bytes, pos: int, end: int) -> tuple:
+        """Every field of the message at pos..end (its 4-byte encapsulation first), checked."""
+        if end - pos < 16:
             raise _Unusable
-        frame = buf[pos + 16 : stop - 1]
+        unpack, size = self._layout(kind, _U32.unpack_from(buf, pos + 12)[0])
+        if not size <= end - pos <= size + 3:
+            raise _Unusable
+        values = unpack.unpack_from(buf, pos)
+        frame = values[4]
+        if values[0] != b"\x00\x01" or frame[-1] != 0:
+            raise _Unusable  # not little-endian CDR (the generic path decodes big-endian), or no terminator
         if frame not in self._frames:
             try:
-                frame.decode()
+                frame[:-1].decode()
             except UnicodeDecodeError:
                 raise _Unusable from None
             self._frames.add(frame)
-        return sec * NS + nanosec, 12 + length
-
-    @staticmethod
-    def _aligned8(pos: int, cdr: int, size: int, end: int) -> int:
-        """Absolute position of ``size`` bytes at CDR offset ``cdr`` aligned to 8; checks the message ends there."""
-        start = pos + 4 + ((cdr + 7) & -8)
-        stop = start + size
-        if stop > end or end - stop > 3:
-            raise _Unusable
-        return start
-
-    def speed(self, buf: bytes, pos: int, end: int) -> SpeedSample:
-        stamp, cdr = self._header(buf, pos, end)
-        start = self._aligned8(pos, cdr, 48, end)  # twist: linear and angular Vector3
-        return SpeedSample(stamp, _D1.unpack_from(buf, start)[0])
-
-    def power(self, buf: bytes, pos: int, end: int) -> PowerSample:
-        stamp, cdr = self._header(buf, pos, end)
-        start = self._aligned8(pos, cdr, 16, end)
-        consumed, regenerated = _D2.unpack_from(buf, start)
-        return PowerSample(stamp, consumed, regenerated)
+        return values
 
     def fix(self, buf: bytes, pos: int, end: int) -> GnssFix:
-        stamp, cdr = self._header(buf, pos, end)
-        # status: int8 status, uint16 service (aligned to 2); then latitude, longitude, altitude, covariance[9]
-        # (aligned to 8) and uint8 covariance type: 97 bytes
-        status = _STATUS.unpack_from(buf, pos + 4 + cdr)[0]
-        cdr = ((cdr + 1 + 1) & -2) + 2
-        start = self._aligned8(pos, cdr, 97, end)
-        lat, lon, _ = _D3.unpack_from(buf, start)
-        known = buf[start + 96] != 0  # position_covariance_type != COVARIANCE_TYPE_UNKNOWN
-        variance = math.nan
-        if known:
-            cov = _D9.unpack_from(buf, start + 24)
-            variance = 0.5 * (cov[0] + cov[4])
-        return GnssFix(stamp, lat, lon, status, variance, known)
+        v = self._values(0, buf, pos, end)
+        known = v[19] != 0  # position_covariance_type != COVARIANCE_TYPE_UNKNOWN
+        variance = 0.5 * (v[10] + v[14]) if known else math.nan  # covariance[0] and [4]
+        return GnssFix(v[1] * NS + v[2], v[7], v[8], v[5], variance, known)
+
+    def speed(self, buf: bytes, pos: int, end: int) -> SpeedSample:
+        v = self._values(1, buf, pos, end)
+        return SpeedSample(v[1] * NS + v[2], v[5])
+
+    def power(self, buf: bytes, pos: int, end: int) -> PowerSample:
+        v = self._values(2, buf, pos, end)
+        return PowerSample(v[1] * NS + v[2], v[5], v[6])
 
 
 __all__ = ["read_input_events"]
