@@ -351,6 +351,14 @@ class RegimeConfig(ParamSet):
         high=0.75,
         low_open=True,
     )
+    imm_standstill_speed: float = param(
+        0.25,
+        "imm: a sample whose measured speed (the filtered one where none) is slower is standing (UNKNOWN) for the "
+        "regime and restarts the imm; below standstill_speed (which the phase keeps) so that the first step of speeds "
+        "rounded to 1 km/h (0.28 m/s), a departure or the end of a stop, is moving",
+        unit="m/s",
+        low=0.0,
+    )
     effort_tolerance: float = param(
         0.025, "rule: |effort| within this is coasting; above traction, below braking", unit="N/kg", low=0.0
     )

@@ -66,7 +66,18 @@ import numpy as np
 
 from ..regime_codes import BRAKING, COASTING, CRUISING, REGIME_NAMES, TRACTION, UNKNOWN  # noqa: F401 (re-exported)
 from .config import RegimeConfig
-from .regime_model import DEFAULT_W, LOG_SQRT_2PI, SQRT2, START_PRIOR, most_probable, rule
+from .regime_model import (  # noqa: F401 (POWER_* re-exported)
+    DEFAULT_W,
+    LOG_SQRT_2PI,
+    POWER_OFF,
+    POWER_REGEN,
+    POWER_TRACTION,
+    SQRT2,
+    START_PRIOR,
+    most_probable,
+    power_state,
+    rule,
+)
 from .regimes_batch import classify_hmm
 
 
@@ -111,6 +122,7 @@ class RegimeClassifier:
         "_t_const",
         "_t_min",
         "_v",
+        "_v_imm",
         "_vc2",
         "_w_last",
         "_w_rel",
@@ -123,6 +135,7 @@ class RegimeClassifier:
         self._hmm = cfg.method in ("hmm", "imm")  # imm: the hmm gives the phase
         self._imm = _Imm(cfg) if cfg.method == "imm" else None
         self._v = cfg.standstill_speed
+        self._v_imm = cfg.imm_standstill_speed
         s = self._sigma = cfg.accel_noise_std
         self._log_norm = -LOG_SQRT_2PI - math.log(s)
         lam = self._lam = 1.0 / cfg.traction_accel_mean
@@ -187,6 +200,7 @@ class RegimeClassifier:
         opposing_force: float | None = None,
         speed_measured: float | None = None,
         time: float | None = None,
+        power: int | None = None,
     ) -> int:
         """Regime of the next sample of the run; its phase is :attr:`phase` afterwards.
 
@@ -204,31 +218,38 @@ class RegimeClassifier:
         if e is None or a is None or math.isnan(e) or math.isnan(a):
             return UNKNOWN
         v = math.nan
+        standing = False
         if speed is not None:
             v = _float(speed)
             if v is None:
                 return UNKNOWN
-            if not v >= self._v:  # NaN too
+            standing = not v >= self._v  # NaN too
+            if standing:
                 self._prob = None
-                if self._imm is not None:
-                    self._imm.restart()
-                return UNKNOWN
+                if self._imm is None:
+                    return UNKNOWN
         if not self._hmm or not (math.isfinite(e) and math.isfinite(a)):
-            self._phase = rule(e, a, self.config)
+            self._phase = UNKNOWN if standing else rule(e, a, self.config)
             return self._phase
         w_given = _float(opposing_force) if opposing_force is not None else None
         if w_given is not None and not math.isfinite(w_given):
             w_given = None
-        self._phase = phase = self._filter(e, a, v, effort_known, w_given)
+        phase = UNKNOWN if standing else self._filter(e, a, v, effort_known, w_given)
+        self._phase = phase
         if self._imm is None:
             return phase
         t = _float(time) if time is not None else None
         if t is None or not math.isfinite(t) or not math.isfinite(v):
+            if standing:
+                self._imm.restart()
             return phase
         z = _float(speed_measured) if speed_measured is not None else None
         if z is None or not math.isfinite(z):
             z = v
-        return self._imm.step(t, z, w_given if w_given is not None else e - a)
+        if not z >= self._v_imm:  # standing for the imm: the measured speed (its first step, 1 km/h, is moving)
+            self._imm.restart()
+            return UNKNOWN
+        return self._imm.step(t, z, w_given if w_given is not None else e - a, power)
 
     # -- the hidden Markov model ----------------------------------------------------------------------
     def _filter(self, e: float, a: float, v: float, known: bool | None, w_given: float | None) -> int:
@@ -297,13 +318,23 @@ _IMM_START = (0.85, 0.05, 0.05, 0.05)
 _IMM_START_ACCEL = (0.3, 0.0, None, -0.3)
 """imm: the acceleration (m/s^2) each model starts from (None: the coasting -(r + g)); std _IMM_START_STD."""
 _IMM_START_STD = 0.5
-_IMM_CODES = (TRACTION, CRUISING, COASTING, BRAKING)
+_POWER_EPS = 0.05
+"""imm: the likelihood of a power state that contradicts a regime, against 1 where it agrees (0.01-0.15 within 0.5
+points on the tune half's power families): small, not zero, so that a power sample a step late does not veto the
+speeds."""
+_POWER_LIKELIHOOD = (
+    (_POWER_EPS, 0.1, 1.0, 0.3),  # POWER_OFF: coasting; a hold where r + g ~ 0, or braking by the friction brake
+    (1.0, 1.0, _POWER_EPS, _POWER_EPS),  # POWER_TRACTION: traction or a hold against r + g > 0
+    (_POWER_EPS, 1.0, _POWER_EPS, 1.0),  # POWER_REGEN: braking, or a hold downhill
+)
+"""imm: P(power state | TRACTION, CRUISING, COASTING, BRAKING), up to a factor per state."""
 _NOISE_FLOOR = 0.2
 """imm: the learned speed noise stays above this share of ``imm_speed_noise_std``."""
 _NOISE_WEIGHT = 0.05
 """imm: weight of one sample in the running mean of the absolute second differences (about 20 samples)."""
 _NOISE_MAX_DT = 2.0
 """imm: the noise is learned from steps of at most this many seconds (over longer ones the acceleration changes)."""
+_TWO_PI = 2.0 * math.pi
 _GAUSS_ABS = math.sqrt(math.pi / 2.0)
 """sigma / mean |x| of a zero-mean Gaussian."""
 
@@ -386,8 +417,9 @@ class _Imm:
     def speed_noise(self) -> float:
         return self._noise
 
-    def step(self, t: float, z: float, w: float) -> int:
-        """The regime at time t (s) given the measured speed z (m/s) and r + g = w (N/kg)."""
+    def step(self, t: float, z: float, w: float, power: int | None = None) -> int:
+        """The regime at time t (s) given the measured speed z (m/s), r + g = w (N/kg) and the traction power's state
+        (POWER_*, None: not measured)."""
         self._learn_noise(t, z)
         if self._mu is None or not t > self._t:  # first sample, or time not increasing: start over
             r, s2 = self._r, _IMM_START_STD**2
@@ -401,27 +433,34 @@ class _Imm:
         stay, off = 1.0 - switch, switch / 3.0
         mu, xs, r = self._mu, self._x, self._r
         coast_var = self._c2 + self._rel2 * w * w
+        like_power = None if power is None else _POWER_LIKELIHOOD[power]
         out_x = []
         weights = []
+        # mixing: model j's prior is the models' posteriors weighed by P(i -> j) = off + (stay - off) [i == j]; the
+        # sums over i of mu_i times the moments once, then each j adds its own share (moments about the first speed)
+        keep = stay - off
+        z0 = xs[0][0]
+        s_v = s_a = s_vv = s_va = s_aa = 0.0
+        moments = []
+        for m_i, x in zip(mu, xs):
+            dv, a_i = x[0] - z0, x[1]
+            mom = (dv, a_i, x[2] + dv * dv, x[3] + dv * a_i, x[4] + a_i * a_i)
+            moments.append(mom)
+            s_v += m_i * mom[0]
+            s_a += m_i * mom[1]
+            s_vv += m_i * mom[2]
+            s_va += m_i * mom[3]
+            s_aa += m_i * mom[4]
         for j in range(4):
-            # mixing: model j's prior is the other models' posteriors weighed by P(i -> j)
-            c = [mu[i] * (stay if i == j else off) for i in range(4)]
-            cj = c[0] + c[1] + c[2] + c[3]
-            v0 = a0 = 0.0
-            for ci, x in zip(c, xs):
-                v0 += ci * x[0]
-                a0 += ci * x[1]
-            v0 /= cj
-            a0 /= cj
-            pvv = pva = paa = 0.0
-            for ci, x in zip(c, xs):
-                dv, da = x[0] - v0, x[1] - a0
-                pvv += ci * (x[2] + dv * dv)
-                pva += ci * (x[3] + dv * da)
-                paa += ci * (x[4] + da * da)
-            pvv /= cj
-            pva /= cj
-            paa /= cj
+            kj = keep * mu[j]
+            cj = off + kj  # sum of mu = 1
+            mv, ma, mvv, mva, maa = moments[j]
+            dv0 = (off * s_v + kj * mv) / cj
+            a0 = (off * s_a + kj * ma) / cj
+            pvv = (off * s_vv + kj * mvv) / cj - dv0 * dv0
+            pva = (off * s_va + kj * mva) / cj - dv0 * a0
+            paa = (off * s_aa + kj * maa) / cj - a0 * a0
+            v0 = z0 + dv0
             # prediction over dt
             if j == 1 or j == 2:  # hold / coast: the model's own acceleration over the step
                 ap, va = (0.0, self._h2) if j == 1 else (-w, coast_var)
@@ -440,20 +479,21 @@ class _Imm:
             kv, ka = qvv / sv, qva / sv
             an = ap + ka * nu
             paa_n = max(qaa - ka * qva, 1e-12)
-            lik = math.exp(-0.5 * nu * nu / sv) / math.sqrt(2.0 * math.pi * sv)
+            lik = math.exp(-0.5 * nu * nu / sv) / math.sqrt(_TWO_PI * sv)
             if j == 0 or j == 3:  # the sign of the effort a + r + g: positive in traction, negative in braking
                 x = (an + w) / math.sqrt(paa_n)
                 lik *= 0.5 * math.erfc(-x / SQRT2 if j == 0 else x / SQRT2)
+            if like_power is not None:
+                lik *= like_power[j]
             weights.append(cj * lik)
             out_x.append([vp + kv * nu, an, qvv - kv * qvv, qva - kv * qva, paa_n])
         total = weights[0] + weights[1] + weights[2] + weights[3]
         if not total > 0.0 or not math.isfinite(total):  # every model rejects the sample: start over from it
             self._mu = None
-            return self.step(t, z, w)
+            return self.step(t, z, w, power)
         self._mu = [wt / total for wt in weights]
         self._x = out_x
-        best = max(range(4), key=self._mu.__getitem__)
-        return _IMM_CODES[best]
+        return most_probable(*weights)
 
 
 def classify_regimes(
