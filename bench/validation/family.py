@@ -332,13 +332,19 @@ def grid_ns(sset: SensorSet, power: bool) -> int:
     return round(max(periods) * 1e9)
 
 
-def simulate_spec(spec: RunSpec, start_ns: int = 1_700_000_000_000_000_000) -> tuple[Streams, Davis, Track, TrainSpec]:
-    """Simulate every interstation of the run with one true resistance and one sensor phase."""
+def simulate_spec(
+    spec: RunSpec, start_ns: int = 1_700_000_000_000_000_000, truth: Davis | None = None
+) -> tuple[Streams, Davis, Track, TrainSpec]:
+    """Simulate every interstation of the run with one true resistance and one sensor phase.
+
+    ``truth``: this resistance instead of the one drawn from the seed (the draw is made all the same, so the
+    driver and the noise follow from the seed alone; bench/prediction/siblings.py: other runs of one unit)."""
     fam = spec.family
     track = cached_track(resolve_track(fam.track))
     train = cached_train(resolve_train(fam.train))
     rng = np.random.default_rng(spec.seed)
-    truth = true_resistance(train, rng)
+    drawn = true_resistance(train, rng)
+    truth = drawn if truth is None else truth
     sset = SENSORS[fam.sensors]
     gnss_offset = float(rng.uniform(*sset.gnss_shift_s)) % sset.gnss_period_s
     pairs = station_pairs(track, fam.stops)
