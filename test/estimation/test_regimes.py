@@ -530,6 +530,59 @@ def test_imm_takes_the_traction_power_s_state_where_measured():
     assert labels[3:22] == [CRUISING] * 19 and labels[23:] == [COASTING] * 3
 
 
+def _steep_coasts(seed):
+    """10 s samples over gradients of +-27 per mille alternating every 26 m (g = +-0.27 N/kg, r = 0.03 N/kg): 150 s
+    held, 150 s coasting, four times from 72 km/h; speeds with 0.5 km/h noise rounded to 1 km/h, positions with 2 m
+    noise. Rows (t s, s m, speed m/s, truth, g at the sample N/kg, Gamma(s) J/kg)."""
+    rng = np.random.default_rng(seed)
+    seg, g_amp, r = 26.0, 0.27, 0.03
+
+    def g(s):
+        return g_amp if int(s // seg) % 2 == 0 else -g_amp
+
+    def gamma(s):  # the integral of g from 0: each pair of segments cancels
+        rem = s - 2.0 * seg * int(s // (2.0 * seg))
+        return g_amp * min(rem, seg) - g_amp * max(rem - seg, 0.0)
+
+    t, s, v, rows = 0.0, 0.0, 20.0, []
+    for reg in ([CRUISING] * 15 + [COASTING] * 15) * 4:
+        for _ in range(100):
+            v += 0.1 * (0.0 if reg == CRUISING else -(r + g(s)))
+            s += 0.1 * v
+            t += 0.1
+        z = round((v + rng.normal(0.0, 0.5 * KMH)) / KMH) * KMH
+        rows.append((t, s + rng.normal(0.0, 2.0), z, reg, g(s), gamma(s)))
+    return rows, r
+
+
+def test_imm_takes_the_mean_track_force_over_a_long_step():
+    """At 10 s the train runs ~200 m in a step; where the gradient changes every 26 m, g at the sample says nothing of
+    the step's deceleration, and the coasts look like anything but coasting. Given s and Gamma(s) (the measurement's
+    track_force_integral), the imm takes the step's mean g, (Gamma - Gamma_prev) / (s - s_prev)."""
+    for seed in (0, 1):
+        rows, r = _steep_coasts(seed)
+        truth = np.array([row[3] for row in rows])
+        out = {}
+        for with_gamma in (False, True):
+            c = RegimeClassifier(RegimeConfig())
+            out[with_gamma] = np.array([
+                c.classify(0.0, 0.0, z, opposing_force=r + gs, speed_measured=z, time=t, track_force=gs,
+                           position=s if with_gamma else None, track_force_integral=gam if with_gamma else None)
+                for t, s, z, _, gs, gam in rows
+            ])  # fmt: skip
+        # measured (seeds 0, 1): 0.508, 0.492 at the sample; 0.883, 0.867 with the mean; coasts 0.05 -> 0.85
+        assert np.mean(out[False] == truth) <= 0.6 and np.mean(out[True] == truth) >= 0.82
+        assert np.mean(out[True][truth == COASTING] == COASTING) >= 0.75
+        assert np.mean(out[False][truth == COASTING] == COASTING) <= 0.2
+    # at 1 Hz (steps shorter than 50 m) g at the sample stays: the same labels with or without Gamma
+    c1, c2 = RegimeClassifier(RegimeConfig()), RegimeClassifier(RegimeConfig())
+    for k in range(60):
+        z, s = 20.0 - 0.01 * k, 20.0 * k
+        a = c1.classify(0.0, 0.0, z, opposing_force=0.05, speed_measured=z, time=float(k), track_force=0.02,
+                        position=s, track_force_integral=0.3 * s)  # fmt: skip
+        assert a == c2.classify(0.0, 0.0, z, opposing_force=0.05, speed_measured=z, time=float(k), track_force=0.02)
+
+
 def test_imm_departure_at_one_km_h_is_moving():
     """Speeds rounded to 1 km/h: the first moving sample of a departure reads 1 km/h (0.28 m/s), below the phase's
     standstill_speed (0.3 m/s): the imm calls it TRACTION (its phase stays UNKNOWN); 0 km/h is standing."""

@@ -94,11 +94,10 @@ def test_the_power_of_each_estimates_measurement_reaches_the_classifier_as_in_th
         got = [m.regime for m in published]
         stream = RegimeStream(RegimeConfig())
         effort = PowerEffort(load_train(train_file("virm6")))
-        expected = [
-            stream.push(regime_input_from_msg(estimates[k]),
-                        power_state(measurement_from_msg(measurements[k]), effort) if k in measurements else None)[0][1]
-            for k in range(n)
-        ]  # fmt: skip
+        expected = []
+        for k in range(n):
+            m = measurement_from_msg(measurements[k]) if k in measurements else None
+            expected.append(stream.push(regime_input_from_msg(estimates[k]), power_state(m, effort), m)[0][1])
         assert got == expected
         from train_calib.regime_codes import COASTING, CRUISING
 

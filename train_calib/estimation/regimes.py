@@ -107,6 +107,7 @@ class RegimeClassifier:
     __slots__ = (
         "_b_hi",
         "_b_lo",
+        "_g_prev",
         "_hmm",
         "_imm",
         "_known_log",
@@ -160,6 +161,7 @@ class RegimeClassifier:
             self._imm.reset()
         self._w_last = math.nan
         self._w_speed = math.nan
+        self._g_prev: tuple[float, float] | None = None  # (s m, Gamma J/kg) of the last sample that had them
 
     @property
     def revised_previous(self) -> int | None:
@@ -201,6 +203,9 @@ class RegimeClassifier:
         speed_measured: float | None = None,
         time: float | None = None,
         power: int | None = None,
+        track_force: float | None = None,
+        position: float | None = None,
+        track_force_integral: float | None = None,
     ) -> int:
         """Regime of the next sample of the run; its phase is :attr:`phase` afterwards.
 
@@ -209,7 +214,11 @@ class RegimeClassifier:
         ``opposing_force`` = resistance + track_force (N/kg), the force the effort works against. ``imm`` needs
         ``time`` (s, any origin) and the speed; it uses ``speed_measured`` (m/s; the filtered speed where it is
         None or NaN) and ``opposing_force`` (effort - acceleration without it). Without ``time`` or speed the
-        ``imm`` regime is the phase.
+        ``imm`` regime is the phase. ``power``: the traction power's state (POWER_*; None: not measured).
+        ``track_force`` (g at the sample, N/kg, part of ``opposing_force``), ``position`` (the measured s, m) and
+        ``track_force_integral`` (Gamma(s), J/kg, the integral of g over s): the imm takes the mean g over the step
+        since the previous sample that had them, (Gamma - Gamma_prev) / (s - s_prev), in place of g at the sample:
+        at 10 s the train runs 200-300 m in a step, over gradients that may change every few tens of metres.
         """
         self._revised = None
         self._phase = UNKNOWN
@@ -249,7 +258,27 @@ class RegimeClassifier:
         if not z >= self._v_imm:  # standing for the imm: the measured speed (its first step, 1 km/h, is moving)
             self._imm.restart()
             return UNKNOWN
-        return self._imm.step(t, z, w_given if w_given is not None else e - a, power)
+        w_imm = w_given if w_given is not None else e - a
+        g_mean = self._step_track_force(position, track_force_integral)
+        g_here = _float(track_force) if track_force is not None else None
+        if g_mean is not None and g_here is not None and math.isfinite(g_here):
+            w_imm += g_mean - g_here
+        return self._imm.step(t, z, w_imm, power)
+
+    def _step_track_force(self, position: float | None, integral: float | None) -> float | None:
+        """The mean g (N/kg) over the step from the previous (s, Gamma) to this one; None where unknown or where the
+        train moved less than ``_STEP_MIN_M`` or more than ``_STEP_MAX_M``."""
+        s = _float(position) if position is not None else None
+        gamma = _float(integral) if integral is not None else None
+        if s is None or gamma is None or not (math.isfinite(s) and math.isfinite(gamma)):
+            return None
+        prev, self._g_prev = self._g_prev, (s, gamma)
+        if prev is None:
+            return None
+        ds = s - prev[0]
+        if not _STEP_MIN_M < abs(ds) < _STEP_MAX_M:
+            return None
+        return (gamma - prev[1]) / ds
 
     # -- the hidden Markov model ----------------------------------------------------------------------
     def _filter(self, e: float, a: float, v: float, known: bool | None, w_given: float | None) -> int:
@@ -318,6 +347,10 @@ _IMM_START = (0.85, 0.05, 0.05, 0.05)
 _IMM_START_ACCEL = (0.3, 0.0, None, -0.3)
 """imm: the acceleration (m/s^2) each model starts from (None: the coasting -(r + g)); std _IMM_START_STD."""
 _IMM_START_STD = 0.5
+_STEP_MIN_M = 50.0
+"""imm: the mean g over a step is taken over at least this distance (m); shorter (standing, noise): g at the sample."""
+_STEP_MAX_M = 2000.0
+"""imm: ... and at most this distance (m); longer (a gap, a jump to another run): g at the sample."""
 _POWER_EPS = 0.05
 """imm: the likelihood of a power state that contradicts a regime, against 1 where it agrees (0.01-0.15 within 0.5
 points on the tune half's power families): small, not zero, so that a power sample a step late does not veto the

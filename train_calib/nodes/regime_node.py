@@ -17,10 +17,11 @@ message keeps the sample's own stamp and frame_id).
 
 The imm also weighs each sample by the state of its traction power where measured (traction drawn, regenerated,
 neither: :func:`train_calib.estimation.regime_model.power_state`, with the train file's efficiency, mass and
-auxiliary power), from the sample's /train_calib/measurement: an estimate is held until the measurement of its
-stamp has come (it comes first: ukf_node publishes the estimate after it), until a later one has come (dropped), or
-for at most ``MEASUREMENT_WAIT`` estimates (no measurement topic: the regimes from the speeds alone), as the
-offline pipeline pairs them (:class:`train_calib.pipeline.Pipeline`).
+auxiliary power) and takes the mean track force over the step from the measurements' s and
+``track_force_integral``, both from the sample's /train_calib/measurement: an estimate is held until the
+measurement of its stamp has come (it comes first: ukf_node publishes the estimate after it), until a later one has
+come (dropped), or for at most ``MEASUREMENT_WAIT`` estimates (no measurement topic: the regimes from the speeds
+alone), as the offline pipeline pairs them (:class:`train_calib.pipeline.Pipeline`).
 """
 
 from __future__ import annotations
@@ -34,6 +35,7 @@ from .. import paths
 from ..estimation import REGIME_NAMES, RegimeClassifier, RegimeConfig
 from ..estimation.effort import PowerEffort
 from ..estimation.regime_model import power_state
+from ..measurement import Measurement
 from ..params import ParamSet
 from ..pipeline import RegimeStream
 from ..train import load_train
@@ -60,7 +62,8 @@ class RegimeNode(TrainCalibNode):
         self._counts: Counter[int] = Counter()
         self._restarts = 0
         self._held: deque[Any] = deque()  # estimates (RegimeInput) awaiting their measurement's power state
-        self._powers: dict[tuple[int, int], int | None] = {}  # (run_id, stamp_ns) -> power state, ordered by run
+        # (run_id, stamp_ns) -> (power state, measurement), ordered by run
+        self._powers: dict[tuple[int, int], tuple[int | None, Measurement]] = {}
         self._newest_measurement: tuple[int, int] = (-1, -1)
         self._with_power = 0
         self.output(DrivingRegime, REGIME_TOPIC)
@@ -83,7 +86,8 @@ class RegimeNode(TrainCalibNode):
     def _on_measurement(self, msg: TrackMeasurement) -> None:
         m = measurement_from_msg(msg)
         key = (m.run_id, m.stamp_ns)
-        self._powers[key] = state = power_state(m, self._power)
+        state = power_state(m, self._power)
+        self._powers[key] = (state, m)
         self._with_power += state is not None
         self._newest_measurement = max(self._newest_measurement, key)
         self._release()
@@ -101,7 +105,8 @@ class RegimeNode(TrainCalibNode):
             if coming and not everything and len(self._held) <= MEASUREMENT_WAIT:
                 return
             self._held.popleft()
-            self._publish(self.stream.push(sample, self._powers.pop(key, None)))
+            power, m = self._powers.pop(key, (None, None))
+            self._publish(self.stream.push(sample, power, m))
             if len(self._powers) > 4 * MEASUREMENT_WAIT:  # measurements without an estimate (rejected) go
                 self._powers = {k: p for k, p in self._powers.items() if k > key}
 
