@@ -47,3 +47,11 @@ def write_case_track(profile: str, out: Path, seed: int = 0) -> Path:
     out = Path(out)
     out.write_text(yaml.safe_dump(case_track(profile, seed), sort_keys=False), encoding="utf-8")
     return out
+
+
+if __name__ == "__main__":  # python bench/occupation/release_case.py PROFILE OUT.yaml [SEED]
+    import sys
+
+    if len(sys.argv) not in (3, 4) or sys.argv[1] not in PROFILES:
+        sys.exit(f"usage: release_case.py {{{','.join(PROFILES)}}} OUT.yaml [SEED]")
+    print(write_case_track(sys.argv[1], Path(sys.argv[2]), int(sys.argv[3]) if len(sys.argv) == 4 else 1))
