@@ -165,6 +165,7 @@ FAMILIES: tuple[Family, ...] = (
         "eco",
         "10s",
         stops=True,
+        runs=20,  # 60 samples, 2 short coasts a run: with 4 a half, one sample more or less moved a median 5 points
         note="real profile, 3 interstations with dwell, coasting before every stop, 10 s",
     ),
     Family(
