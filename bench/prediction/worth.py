@@ -365,9 +365,9 @@ def hurt_table(results: list[dict[str, Any]], min_s: float = MIN_COAST_S, margin
 
 
 def unit_energy_table(results: list[dict[str, Any]]) -> str:
-    """Per family with traction power: median / max |traction energy error| % per model (calibrated: over every
-    other run of the unit)."""
-    lines = ["| family | runs | train_file |error| % med / max | causal | calibrated on another run | truth |",
+    """Per family with traction power: median / 90th percentile |traction energy error| % per model (calibrated: over
+    every other run of the unit)."""
+    lines = ["| family | runs | train_file: abs. error % med / p90 | causal | calibrated on another run | truth |",
              "|---|---|---|---|---|---|"]  # fmt: skip
     for g in sorted({r["group"] for r in results}):
         rs = [r for r in results if r["group"] == g and r.get("energy")]
@@ -382,7 +382,7 @@ def unit_energy_table(results: list[dict[str, Any]]) -> str:
             else:
                 name = f"{key}_error_pct"
                 vals = [abs(r["energy"][name]) for r in rs if r["energy"].get(name) is not None]
-            cells.append(f"{np.median(vals):.1f} / {max(vals):.1f}" if vals else "-")
+            cells.append(f"{np.median(vals):.1f} / {np.percentile(vals, 90):.1f}" if vals else "-")
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines) if len(lines) > 2 else "(no run with traction power)"
 
