@@ -184,6 +184,8 @@ def main() -> int:
         print(f"one speed (30 m/s, 0.3-1.5 s late), {name}: separable {case['separable']}: {case['reason']}")
     stad = [r for r in rows if r["profile"] == "stadelhofen"]
     print(f"stadelhofen: separable in {sum(r['separable'] for r in stad)}/{len(stad)}: {stad[0]['reason']}")
+    fired = sum(r["sections_differ"] for r in rows)
+    print(f"sections_differ (one delay per fleet: should not fire): {fired}/{len(rows)}")
     print(f"estimation time: median {1000 * np.median([r['elapsed_s'] for r in rows]):.0f} ms per fleet")
     OUT.mkdir(exist_ok=True)
     (OUT / "bench_release.json").write_text(json.dumps({"rows": rows, "one_speed": one}, indent=1, default=float))
