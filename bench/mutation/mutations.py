@@ -139,7 +139,7 @@ MUTATIONS: tuple[Mutation, ...] = (
              "START_PRIOR = (0.85, 0.05, 0.05, 0.05)",
              "START_PRIOR = (0.25, 0.25, 0.25, 0.25)",
              "the HMM starts without the departing prior", REGIME_TESTS),
-    Mutation("regimes-4", _REGIMES + "regimes.py",
+    Mutation("regimes-4", _REGIMES + "regime_imm.py",
              "_NOISE_FLOOR = 0.2",
              "_NOISE_FLOOR = 2.0",
              "the IMM's noise floor ten times too high", REGIME_TESTS),

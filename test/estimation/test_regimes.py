@@ -490,6 +490,24 @@ def test_imm_per_sample_and_batch_agree_and_phase_follows_the_classifier():
     assert RegimeClassifier(HMM).imm_speed_noise is None
     # without time the imm regime is the phase
     assert RegimeClassifier(cfg).classify(0.3, 0.3, 10.0) == TRACTION
+    # the batch with the power's state and the step mean: the classifier's labels sample for sample
+    from train_calib.estimation.regimes import POWER_OFF, POWER_TRACTION
+
+    rows, r = _steep_coasts(2)
+    t10, s10, z10 = (np.array([row[k] for row in rows]) for k in (0, 1, 2))
+    g10, gam10 = np.array([row[4] for row in rows]), np.array([row[5] for row in rows])
+    power = np.where(np.arange(len(rows)) % 30 < 15, POWER_TRACTION, POWER_OFF)
+    power[::7] = -1  # not measured
+    zero = np.zeros(len(rows))
+    batch = classify_regimes(zero, zero, cfg, z10, opposing_force=r + g10, speed_measured=z10, time=t10, power=power,
+                             track_force=g10, position=s10, track_force_integral=gam10)  # fmt: skip
+    c = RegimeClassifier(cfg)
+    for k in range(len(rows)):
+        pk = None if power[k] < 0 else int(power[k])
+        one = c.classify(0.0, 0.0, z10[k], opposing_force=r + g10[k], speed_measured=z10[k], time=t10[k], power=pk,
+                         track_force=g10[k], position=s10[k], track_force_integral=gam10[k])  # fmt: skip
+        assert batch[k] == one
+    assert len(set(batch.tolist())) >= 3  # not one label throughout
 
 
 def test_imm_takes_the_traction_power_s_state_where_measured():
