@@ -444,6 +444,8 @@ class CoastRegression:
         self._v_var: list[float] = []  # (m/s)^2, the sensor's stated variance
         self._d2: deque[float] = deque(maxlen=self.NOISE_SAMPLES)  # second differences of the moving speeds
         self._d3: deque[float] = deque(maxlen=self.NOISE_SAMPLES)  # third differences (noise estimate)
+        self._prior_floats = tuple(float(x) for x in self.prior)
+        self._grade, self._grade_at, self._grade_seen = math.nan, 0, 0
         self._grade_errors: deque[float] = deque(maxlen=self.NOISE_SAMPLES)  # coast_energy.step_grade_error's terms
         self._quantum = math.inf
         self._v_max = 0.0
@@ -462,8 +464,12 @@ class CoastRegression:
         self.__init__(self._train, self.settings, Davis(*self.prior))
 
     def grade_error(self) -> float:
-        """coast_energy.step_grade_error over the moving steps seen (the latest NOISE_SAMPLES)."""
-        return float(np.median(self._grade_errors)) if self._grade_errors else 0.0
+        """coast_energy.step_grade_error over the moving steps seen (the latest NOISE_SAMPLES), recomputed after
+        every 16 new steps."""
+        if self._grade_seen - self._grade_at >= 16 or not math.isfinite(self._grade):
+            self._grade = float(np.median(self._grade_errors)) if self._grade_errors else 0.0
+            self._grade_at = self._grade_seen
+        return self._grade
 
     def sigma_v(self) -> float:
         """Current speed-noise estimate (m/s); recomputed after every 64 new second differences."""
@@ -513,10 +519,12 @@ class CoastRegression:
             v_min = self.settings.coast_min_speed
             if ds > 1.0 and v >= v_min and self._v[-1] >= v_min:
                 v_mid = 0.5 * (v + self._v[-1])
+                r0, r1, r2 = self._prior_floats
                 exact = (gamma - self._gamma[-1]) / ds
                 self._grade_errors.append(
-                    abs(exact - 0.5 * (g + self._g[-1])) / max(float(davis_value(self.prior, v_mid)), 1e-6)
+                    abs(exact - 0.5 * (g + self._g[-1])) / max(r0 + (r1 + r2 * v_mid) * v_mid, 1e-6)
                 )
+                self._grade_seen += 1
         self._t.append(t)
         self._v.append(v)
         self._g.append(g)
@@ -552,17 +560,16 @@ class CoastRegression:
             np.asarray(self._tun),
             np.asarray(self._run, dtype=np.int64),
             power if np.any(power != POWER_UNKNOWN) else None,
-            np.asarray(self._s),
-            np.asarray(self._gamma),
-            np.asarray(self._s_var),
-            np.asarray(self._v_var),
         )
         if arr.t.size < 3:
             return False
         sv = self.sigma_v()
         period = _period(arr.t)
-        if uses_energy_form(arr, cfg, period, self.grade_error()):
-            return self._detect_energy(arr, sv, period)
+        if period >= cfg.coast_energy_period:  # the energy form's columns only where it may apply
+            arr.s, arr.gamma = np.asarray(self._s), np.asarray(self._gamma)
+            arr.s_var, arr.v_var = np.asarray(self._s_var), np.asarray(self._v_var)
+            if uses_energy_form(arr, cfg, period, self.grade_error()):
+                return self._detect_energy(arr, sv, period)
         self.window = window = slope_window(cfg, sv, period, self.prior, self._v_max)
         by_speed, by_power = candidate_steps(arr, cfg, self.prior, sv, window, period)
         step = by_speed | by_power
