@@ -27,6 +27,7 @@ PREDICTION = ("prediction_node",)
 FILE_PARAMETERS = {
     "gnss_speed_node": ("track_file", "train_file"),
     "ukf_node": ("train_file",),
+    "regime_node": ("train_file",),
     "window_calib_node": ("train_file",),
     "prediction_node": ("track_file", "train_file"),
 }

@@ -57,6 +57,14 @@ def test_built_geometry_matches_the_bundled_track(built):
     assert np.max(np.abs(proj[:, 0] - s)) < 40.0  # chainage, m; measured 8.7 m (cross-track 4.6 m, in the tunnel 30 m)
 
 
+def test_built_track_marks_the_tunnel(built):
+    """The bundled runs lose their fixes in the 1,050 m tunnel at 9,100-10,150 m (10 s fixes at ~38 m/s: each run
+    bounds each edge to ~385 m; five runs' different phases narrow it). Measured 9,065-10,187 m, edges +-31 m."""
+    assert len(built.tunnels) == 1
+    assert built.tunnels[0].start_m == pytest.approx(9100.0, abs=80.0)
+    assert built.tunnels[0].end_m == pytest.approx(10150.0, abs=80.0)
+
+
 def test_built_track_gives_the_bundled_tracks_estimates(built):
     """r(80 km/h) from the built track and from the bundled one: measured within 0.02 % (final and best) on all
     five bundled runs; bound 0.5 %."""

@@ -1,9 +1,14 @@
-"""Every drop reason and every counter of the ingest made non-zero, with its exact count.
+"""Every drop reason and every counter of the ingest made non-zero, with its exact count, through the public
+``Ingest`` API (events in, measurements and ``stats`` out; issue 23's mutation test: deleting a drop count passed the
+whole suite).
 
 ``test_ingest.py`` counts the value checks (nan, no_fix, negative and implausible speed, speed_jump, duplicate,
 stale, negative_power) and the map matching (jump, off_track); this file adds the rest (no_position,
-out_of_order, reversing, the bad_covariance repair, dead reckoning, clock resets) and checks that every reason
-has an exact count asserted in some test_ingest*.py.
+out_of_order, reversing, the bad_covariance repair, dead reckoning, clock resets), the drops the mutation test found
+uncounted (regenerated power, off_track just beyond max_cross_track, an accepted speed step's held samples), and
+checks that every reason has an exact count asserted in some test_ingest*.py. Scenes: the small track (a 3 km line
+due north) with fixes and speed at exactly known positions; ``_accelerating`` is a train standing at 200 m for
+10 s, accelerating at 0.5 m/s^2 and cruising at 20 m/s.
 """
 
 from __future__ import annotations
@@ -13,6 +18,7 @@ import math
 import re
 from pathlib import Path
 
+import numpy as np
 import pytest
 import test_ingest
 from test_ingest import NS, T0, Profile, events, fix_at
@@ -38,6 +44,40 @@ def _runs(ms) -> list[tuple[int, int]]:
     return [(run, len(list(group))) for run, group in itertools.groupby(m.run_id for m in ms)]
 
 
+def _accelerating(t: float) -> tuple[float, float]:
+    """(s m, v m/s): standing at 200 m for 10 s, then 0.5 m/s^2 up to 20 m/s, then cruising."""
+    ta = min(max(t - 10.0, 0.0), 40.0)
+    s = 200.0 + 0.25 * ta * ta + 20.0 * max(t - 50.0, 0.0)
+    return s, 0.5 * ta
+
+
+def _accelerating_events(track, until: float, fix=lambda t: True, speed=lambda t: True) -> list:
+    """``_accelerating``'s fix then speed sample at every whole second below ``until`` where ``fix(t)`` /
+    ``speed(t)``."""
+    out = []
+    for t in np.arange(0.0, until, 1.0):
+        s, v = _accelerating(float(t))
+        if fix(t):
+            lat, lon = track.latlon_at(s)
+            out.append(GnssFix(T0 + int(t) * NS, float(lat), float(lon), 0))
+        if speed(t):
+            out.append(SpeedSample(T0 + int(t) * NS, v))
+    return out
+
+
+def _fix(track, t: float, s: float, east: float = 0.0) -> GnssFix:
+    """The fix at time t (s) of the point s (m) along the track, ``east`` m off it."""
+    lat, lon = track.latlon_at(s)
+    if east:
+        e, n = track.to_enu(lat, lon)
+        lat, lon = track.frame.to_geodetic(e + east, n)
+    return GnssFix(T0 + round(t * NS), float(lat), float(lon), 0)
+
+
+def _seconds(measurements) -> list[int]:
+    return [(m.stamp_ns - T0) // NS for m in measurements]
+
+
 def test_every_drop_and_repair_reason_has_an_exact_count_asserted_in_the_ingest_tests():
     """Each reason of DROP_REASONS and REPAIR_REASONS stands as ``"reason": <count>`` in a test_ingest*.py."""
     text = "\n".join(p.read_text() for p in sorted(Path(__file__).parent.glob("test_ingest*.py")))
@@ -58,6 +98,18 @@ def test_speed_before_the_first_fix_has_no_position(track, train):
     assert ingest.stats.accepted[SPEED] == 5 and ingest.stats.published == 0 and not ingest.acquired
 
 
+def test_speed_before_the_first_fix_is_dropped_as_no_position(track, train):
+    """Speed from t = 0, GNSS only from t = 30 s: the 29 speed samples more than the pairing tolerance before the
+    first fix have no position yet (not acquired); each is counted as no_position and none is published (the one at
+    29 s pairs with the fix at 30 s)."""
+    ingest = Ingest(track, train)
+    out = list(ingest.run(_accelerating_events(track, 100.0, fix=lambda t: t >= 30.0)))
+    assert dict(ingest.stats.dropped[SPEED]) == {"no_position": 29}
+    assert dict(ingest.stats.dropped[GNSS]) == {}
+    assert _seconds(out) == list(range(29, 100))
+    assert ingest.stats.received[SPEED] == 100 and ingest.stats.published == 71
+
+
 def test_dead_reckoning_ends_after_max_dead_reckoning(track, train):
     """After the last fix the position is dead-reckoned for max_dead_reckoning (10 s) and no longer: the speed
     sample 15 s after the last measurement has no position, the one 8 s after it is dead-reckoned."""
@@ -72,6 +124,18 @@ def test_dead_reckoning_ends_after_max_dead_reckoning(track, train):
     assert out[1].s == pytest.approx(516.0, abs=1e-3)  # 8 s at 2 m/s from the fix
     assert dict(ingest.stats.dropped[SPEED]) == {"no_position": 1}
     assert ingest.stats.dead_reckoned == 1 and ingest.stats.published == 2
+
+
+def test_speed_after_a_gap_longer_than_max_dead_reckoning_is_dropped_as_no_position(track, train):
+    """Fixes missing from 61 to 99 s and speed from 61 to 69 s: after the speed gap (9 s > max_dead_reckoning 5 s)
+    the samples cannot be dead-reckoned from the last position; they are dropped as no_position until the fix at
+    100 s positions the train again."""
+    ingest = Ingest(track, train, IngestConfig(max_dead_reckoning=5.0))
+    gnss_out, speed_out = (lambda t: not 60.0 < t < 100.0), (lambda t: not 60.0 < t < 70.0)
+    out = list(ingest.run(_accelerating_events(track, 120.0, fix=gnss_out, speed=speed_out)))
+    assert dict(ingest.stats.dropped[SPEED]) == {"no_position": 29}
+    assert _seconds(out) == [*range(0, 61), *range(99, 120)]
+    assert ingest.stats.published == len(out) == 82
 
 
 def test_dead_reckoned_measurements_are_counted(track, train):
@@ -110,6 +174,28 @@ def test_late_power_is_put_in_order_but_older_than_the_release_is_out_of_order(t
     assert ingest.stats.accepted[POWER] == 1
 
 
+def test_negative_consumed_or_regenerated_power_is_dropped(track, train):
+    """Either power below 0 is a negative_power drop (the regenerated one too)."""
+    evs = _accelerating_events(track, 20.0)
+    evs[10:10] = [PowerSample(T0 + 5 * NS, 1000.0, -5.0), PowerSample(T0 + 6 * NS, -1.0, 0.0)]
+    ingest = Ingest(track, train)
+    list(ingest.run(evs))
+    assert dict(ingest.stats.dropped[POWER]) == {"negative_power": 2}
+    assert ingest.stats.accepted[POWER] == 0
+
+
+def test_a_fix_beyond_max_cross_track_is_off_track_and_one_within_is_kept(track, train):
+    """max_cross_track 30 m: a fix 45 m east of the line is dropped as off_track, one 15 m east is used."""
+    evs = []
+    for t in range(40):
+        s, v = _accelerating(float(t))
+        evs += [_fix(track, t, s, east=45.0 if t == 20 else 15.0 if t == 30 else 0.0), SpeedSample(T0 + t * NS, v)]
+    ingest = Ingest(track, train, IngestConfig(max_cross_track=30.0))
+    out = list(ingest.run(evs))
+    assert dict(ingest.stats.dropped[GNSS]) == {"off_track": 1}
+    assert ingest.stats.accepted[GNSS] == 39 and len(out) == 40
+
+
 def test_speed_against_the_track_direction_is_reversing_until_the_fixes_move_forward(track, train):
     """40 s forward at 5 m/s, 40 s backward, 40 s forward: the backward speed samples are dropped as reversing
     (from the 9th backward second, once the fixes have moved back over reverse_distance), then a new run."""
@@ -138,6 +224,21 @@ def test_reversing_is_reported_while_the_fixes_move_backwards(track, train):
         s += 5.0 if k < 40 else -5.0
     assert ingest.reversing and ingest.stats.reversals == 1
     assert dict(ingest.stats.dropped[SPEED]) == {"reversing": 12}
+
+
+def test_speed_while_the_fixes_move_backwards_is_dropped_as_reversing(track, train):
+    """Forward at 10 m/s for 60 s, then the fixes move back along the track at the same (unsigned) speed: once the
+    direction is seen (from 64 s) every speed sample is counted as reversing and none is published."""
+    evs = []
+    for t in range(120):
+        evs += [
+            _fix(track, t, 500.0 + 10.0 * t if t < 60 else 1100.0 - 10.0 * (t - 60)),
+            SpeedSample(T0 + t * NS, 10.0),
+        ]
+    ingest = Ingest(track, train)
+    out = list(ingest.run(evs))
+    assert dict(ingest.stats.dropped[SPEED]) == {"reversing": 56}
+    assert _seconds(out) == list(range(64))
 
 
 def test_a_known_but_invalid_covariance_is_repaired_with_position_std(track, train):
@@ -219,3 +320,37 @@ def test_a_speed_change_across_a_gap_longer_than_run_gap_is_no_speed_jump(track,
     out += ingest.flush()
     assert ingest.stats.dropped[SPEED] == {}
     assert [(m.v, m.run_id) for m in out] == [(5.0, 0), (10.0, 1), (10.0, 1)]
+
+
+def test_an_accepted_speed_step_takes_back_the_speed_jump_drops_of_its_held_samples(track, train):
+    """10 m/s, then from 45 s a new level of 18 m/s, with max_acceleration 0.5 m/s^2 (the bound, grown with the time
+    since the last accepted sample, reaches the step only after 16 s) and no fixes after 40 s to contradict it: the
+    step is accepted once held for speed_step_time (10 s, at 55 s); the samples that held it (45-54 s) are then
+    published after all and no longer counted as speed_jump drops."""
+    evs = []
+    for t in range(80):
+        if t <= 40:
+            evs.append(_fix(track, t, 500.0 + 10.0 * t))
+        evs.append(SpeedSample(T0 + t * NS, 10.0 if t < 45 else 18.0))
+    ingest = Ingest(track, train, IngestConfig(max_acceleration=0.5))
+    out = list(ingest.run(evs))
+    assert dict(ingest.stats.dropped[SPEED]) == {}
+    assert ingest.stats.accepted[SPEED] == 80
+    assert _seconds(out) == list(range(80))
+    assert [m.v for m in out] == [10.0] * 45 + [18.0] * 35
+
+
+def test_the_last_two_valid_speed_samples_are_known_as_duplicates_after_a_rejected_stretch(track, train):
+    """Valid speed at 0-9 s, then 11 s of NaN speeds (fixes go on): the pairer forgets what no sample can pair with,
+    but keeps the last two valid speed samples; repeats of them (8 s, 9 s) are duplicates, a repeat of 7 s
+    (forgotten, older than the last release) is out of order. Nothing of the repeats is published."""
+    ingest = Ingest(track, train)
+    out = []
+    for t in range(21):
+        out += ingest.add_fix(fix_at(track, float(t), 500.0 + 10.0 * t))
+        out += ingest.add_speed(SpeedSample(T0 + t * NS, 10.0 if t < 10 else math.nan))
+    for t in (7, 8, 9):
+        out += ingest.add_speed(SpeedSample(T0 + t * NS, 10.0))
+    out += ingest.flush()
+    assert dict(ingest.stats.dropped[SPEED]) == {"nan": 11, "out_of_order": 1, "duplicate": 2}
+    assert _seconds(out) == list(range(10)) and ingest.stats.published == 10

@@ -31,3 +31,21 @@ def test_scalar_twin_gives_the_numpy_floats_exactly(f):
             assert scalar(b) == float(f(b))
             assert scalar.integral(b) == float(f.integral(b))
             assert scalar.mean_over(a, b) == float(f.mean_over(a, b))
+
+
+def test_integral_of_the_integral_by_hand_and_by_quadrature(f):
+    """integral2 (piecewise quadratic, exact) against hand values and scipy's quad of ``integral``; the scalar twin
+    gives the same floats; mean_integral_over is its difference quotient."""
+    from scipy.integrate import quad
+
+    assert float(f.integral2(100.0)) == 0.5 * 0.5 * 100.0**2  # 0.5 s^2 / 2 up to the first break
+    assert float(f.integral2(0.0)) == 0.0
+    scalar = ScalarPiecewise(f)
+    for b in (-150.0, 37.0, 100.0, 180.0, 250.0, 999.0, 1300.0):
+        ref, _ = quad(lambda x: float(f.integral(x)), 0.0, b, points=[p for p in f.breaks if min(0, b) < p < max(0, b)])
+        assert float(f.integral2(b)) == pytest.approx(ref, rel=1e-12, abs=1e-9)
+        assert scalar.integral2(b) == float(f.integral2(b))
+        a = b - 140.0
+        assert scalar.mean_integral_over(a, b) == float(f.mean_integral_over(a, b))
+        assert float(f.mean_integral_over(a, b)) == pytest.approx((ref - float(f.integral2(a))) / 140.0, rel=1e-12)
+    assert float(f.mean_integral_over(300.0, 300.0)) == float(f.integral(300.0))  # an empty interval

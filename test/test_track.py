@@ -146,3 +146,19 @@ def test_window_projector_agrees_with_track_project(track):
     # a window beyond the end of the line: its nearest end
     east, north = track.enu_at(2990.0)
     assert projector.project(float(east), float(north), 3500.0, 3600.0)[0] == 3000.0
+
+
+def test_track_force_integral_is_the_integral_of_the_track_force(track):
+    """Gamma(s) (J/kg) against a fine trapezoid of track_force (0.01 m steps; the averaged force is continuous,
+    so the trapezoid converges fast), 0 at s = 0, and the scalar twin's floats to 1e-9 J/kg."""
+    for length in (0.0, 150.0):
+        grid = np.arange(0.0, 3000.0 + 1e-9, 0.01)
+        g = track.track_force(grid, length)
+        ref = np.concatenate(([0.0], np.cumsum(0.5 * (g[1:] + g[:-1]) * np.diff(grid))))
+        s = np.array([0.0, 250.0, 1200.0, 1350.0, 1600.0, 2999.0])
+        gamma = track.track_force_integral(s, length)
+        np.testing.assert_allclose(gamma, np.interp(s, grid, ref), atol=2e-3 if length == 0.0 else 1e-6)
+        assert gamma[0] == 0.0
+        terms = ScalarTrackTerms(track, length)
+        for x, y in zip(s, gamma):
+            assert terms.track_force_integral(float(x)) == pytest.approx(float(y), abs=1e-9)

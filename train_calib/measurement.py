@@ -26,6 +26,7 @@ class Measurement:
     power_valid: bool = False
     power_consumed: float = 0.0     # W
     power_regenerated: float = 0.0  # W
+    track_force_integral: float = float("nan")  # Gamma(s), J/kg: integral of track_force over s (NaN: unknown)
 
     @property
     def t(self) -> float:
@@ -52,6 +53,11 @@ class MeasurementSeries:
     power_valid: np.ndarray
     power_consumed: np.ndarray
     power_regenerated: np.ndarray
+    track_force_integral: np.ndarray | None = None  # J/kg; None: unknown (NaN at every sample)
+
+    def __post_init__(self) -> None:
+        if self.track_force_integral is None:
+            self.track_force_integral = np.full(self.stamp_ns.shape, np.nan)
 
     @property
     def t(self) -> np.ndarray:

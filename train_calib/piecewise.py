@@ -25,6 +25,11 @@ class PiecewiseConstant:
         self.breaks = breaks
         self.values = vals
         self._cumulative = np.concatenate(([0.0], np.cumsum(vals[:-1] * np.diff(breaks))))
+        width = np.diff(breaks)
+        # the integral of the (piecewise linear) integral: piecewise quadratic, exact at the breaks
+        self._cumulative2 = np.concatenate(
+            ([0.0], np.cumsum(self._cumulative[:-1] * width + 0.5 * vals[:-1] * width * width))
+        )
 
     def __call__(self, s_m) -> np.ndarray:
         s = np.asarray(s_m, dtype=float)
@@ -36,6 +41,22 @@ class PiecewiseConstant:
         s = np.asarray(s_m, dtype=float)
         idx = np.clip(np.searchsorted(self.breaks, s, side="right") - 1, 0, self.breaks.size - 1)
         return self._cumulative[idx] + self.values[idx] * (s - self.breaks[idx])
+
+    def integral2(self, s_m) -> np.ndarray:
+        """Integral from breaks[0] to s of :meth:`integral` (m times f's unit times m): exact, piecewise quadratic."""
+        s = np.asarray(s_m, dtype=float)
+        idx = np.clip(np.searchsorted(self.breaks, s, side="right") - 1, 0, self.breaks.size - 1)
+        d = s - self.breaks[idx]
+        return self._cumulative2[idx] + self._cumulative[idx] * d + 0.5 * self.values[idx] * d * d
+
+    def mean_integral_over(self, start_m, end_m) -> np.ndarray:
+        """Mean of :meth:`integral` over [start, end] (integral(end) where the interval is empty)."""
+        a = np.asarray(start_m, dtype=float)
+        b = np.asarray(end_m, dtype=float)
+        width = b - a
+        with np.errstate(invalid="ignore", divide="ignore"):
+            mean = (self.integral2(b) - self.integral2(a)) / width
+        return np.where(width > 1e-9, mean, self.integral(b))
 
     def mean_over(self, start_m, end_m) -> np.ndarray:
         """Mean of f over [start, end] (f(end) where the interval is empty)."""
@@ -56,12 +77,13 @@ class ScalarPiecewise:
     """One position at a time: a PiecewiseConstant's values with the same arithmetic (the same floats) as its
     numpy methods, on plain floats (per sample, ~20x faster than numpy on 0-d arrays). Positions in m."""
 
-    __slots__ = ("breaks", "cumulative", "last", "values")
+    __slots__ = ("breaks", "cumulative", "cumulative2", "last", "values")
 
     def __init__(self, f: PiecewiseConstant) -> None:
         self.breaks = [float(x) for x in f.breaks]
         self.values = [float(x) for x in f.values]
         self.cumulative = [float(x) for x in f._cumulative]
+        self.cumulative2 = [float(x) for x in f._cumulative2]
         self.last = len(self.breaks) - 1
 
     def _index(self, s: float) -> int:
@@ -76,6 +98,18 @@ class ScalarPiecewise:
         """Integral of f from breaks[0] to s."""
         i = self._index(s)
         return self.cumulative[i] + self.values[i] * (s - self.breaks[i])
+
+    def integral2(self, s: float) -> float:
+        """Integral of :meth:`integral` from breaks[0] to s."""
+        i = self._index(s)
+        d = s - self.breaks[i]
+        return self.cumulative2[i] + self.cumulative[i] * d + 0.5 * self.values[i] * d * d
+
+    def mean_integral_over(self, a: float, b: float) -> float:
+        """Mean of :meth:`integral` over [a, b] (integral(b) where the interval is empty)."""
+        if b - a > 1e-9:
+            return (self.integral2(b) - self.integral2(a)) / (b - a)
+        return self.integral(b)
 
     def mean_over(self, a: float, b: float) -> float:
         """Mean of f over [a, b] (f(b) where the interval is empty)."""

@@ -33,7 +33,9 @@ from .estimation import (
     UKFConfig,
 )
 from .estimation.coast_regression import CoastFit, CoastSettings, RunArrays, fit_coasts
+from .estimation.effort import PowerEffort
 from .estimation.records import EFFORT_COMPUTED, EstimateSample
+from .estimation.regime_model import power_state
 from .estimation.safeguards import SafeguardConfig
 from .ingest import Ingest, IngestConfig, IngestStats, fix_from_msg, power_from_msg, speed_from_msg
 from .measurement import Measurement, MeasurementSeries
@@ -59,7 +61,9 @@ class RegimeRecord:
     phase: int = 0  # the paper's phase (RegimeClassifier.phase; features and window calibration use it)
 
 
-def classify_estimate(classifier: RegimeClassifier, estimate: Any) -> int:
+def classify_estimate(
+    classifier: RegimeClassifier, estimate: Any, power: int | None = None, measurement: Any = None
+) -> int:
     """The driving regime of one estimate, as regime_node and :class:`Pipeline` classify it; its phase is
     ``classifier.phase`` afterwards.
 
@@ -68,7 +72,9 @@ def classify_estimate(classifier: RegimeClassifier, estimate: Any) -> int:
     ``RegimeInput``). The classifier gets ``effort_known`` and ``opposing_force`` = resistance + track_force, the
     force the effort works against: with them the HMM uses the exact r + g on every sample and, where the effort
     comes from measured traction power, the instantaneous net acceleration effort - (r + g); the IMM (the default)
-    the measured speed and the time (docs/estimator.md, Regimes). Fields that are None are not passed.
+    the measured speed and the time (docs/estimator.md, Regimes), and ``power``, the state of the measurement's
+    traction power (``power_state``; None: not measured), and from the estimate's ``measurement`` (a Measurement,
+    optional) its s and ``track_force_integral``, for the mean g over the step. Fields that are None are not passed.
     """
     resistance, track_force = estimate.resistance, estimate.track_force
     w = None if resistance is None or track_force is None else resistance + track_force
@@ -80,6 +86,10 @@ def classify_estimate(classifier: RegimeClassifier, estimate: Any) -> int:
         opposing_force=w,
         speed_measured=getattr(estimate, "v_measured", None),
         time=estimate.stamp_ns * 1e-9,
+        power=power,
+        track_force=track_force,
+        position=None if measurement is None else measurement.s,
+        track_force_integral=None if measurement is None else getattr(measurement, "track_force_integral", None),
     )
 
 
@@ -103,8 +113,8 @@ class RegimeStream:
         """Samples classified but not yet released."""
         return int(self._held is not None)
 
-    def push(self, sample: Any) -> list[tuple[Any, int, int]]:
-        regime = classify_estimate(self.classifier, sample)
+    def push(self, sample: Any, power: int | None = None, measurement: Any = None) -> list[tuple[Any, int, int]]:
+        regime = classify_estimate(self.classifier, sample, power, measurement)
         phase = self.classifier.phase
         if not self._lag:
             return [(sample, regime, phase)]
@@ -211,6 +221,7 @@ class Pipeline:
         self.ingest = Ingest(track, train, ingest) if track is not None else None
         self.estimator = ResistanceEstimator(train, ukf, initial, safeguards)
         self.regimes = RegimeStream(regime)
+        self._power = PowerEffort(train)  # the traction power's state for the regimes
         self.features = FeatureStream(features)
         self.window: WindowCalibrator | None = None
         if window is not False:
@@ -244,7 +255,7 @@ class Pipeline:
             return
         out.estimates.append(e)
         self._measurements_held.append((m, True))
-        self._publish_regimes(self.regimes.push(e))
+        self._publish_regimes(self.regimes.push(e, power_state(m, self._power), m))
 
     def _publish_regimes(self, triples: list[tuple[EstimateSample, int, int]]) -> None:
         """What regime_node publishes, then what feature_node and window_calib_node do with each sample's phase

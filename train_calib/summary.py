@@ -86,7 +86,8 @@ def read_outputs(bag: str | Path) -> Outputs:
         if m.topic == MEASUREMENT:
             meas.append(
                 (stamp_ns(msg.header), msg.s, msg.v, msg.run_id, msg.speed_limit, msg.s_measured, msg.track_force,
-                 msg.tunnel_fraction, msg.power_valid, msg.power_consumed, msg.power_regenerated)
+                 msg.tunnel_fraction, msg.power_valid, msg.power_consumed, msg.power_regenerated,
+                 getattr(msg, "track_force_integral", math.nan), msg.s_variance, msg.v_variance)
             )  # fmt: skip
         elif m.topic == RESISTANCE:
             cov = np.asarray(msg.covariance, dtype=float).reshape(5, 5)
@@ -137,6 +138,9 @@ def read_outputs(bag: str | Path) -> Outputs:
             "power_valid": np.array(a[8], dtype=bool),
             "power_consumed": np.array(a[9], dtype=float),
             "power_regenerated": np.array(a[10], dtype=float),
+            "track_force_integral": np.array(a[11], dtype=float),  # NaN in bags recorded before the field
+            "s_variance": np.array(a[12], dtype=float),
+            "v_variance": np.array(a[13], dtype=float),
         }
     if est:
         a = list(zip(*est))
@@ -307,7 +311,8 @@ def best_estimate(
     settings = coast if coast is not None else CoastSettings()
     columns = ("t", "v", "track_force", "tunnel_fraction", "run_id", "power_valid", "power_consumed",
                "power_regenerated")  # fmt: skip
-    arrays = RunArrays.from_columns(*(meas[c] for c in columns), train, settings)
+    energy = ("s", "track_force_integral", "s_variance", "v_variance")
+    arrays = RunArrays.from_columns(*(meas[c] for c in columns), train, settings, *(meas.get(c) for c in energy))
     fit = fit_coasts(arrays, train, settings)
     out: dict[str, Any] = {
         "method": "coast regression over the whole run",

@@ -77,6 +77,21 @@ class Track:
         mean = self.gradient.mean_over(start, s_m) + self.curvature.mean_over(start, s_m)
         return physics.GRAVITY * mean
 
+    def track_force_integral(self, s_m, train_length_m: float = 0.0) -> np.ndarray:
+        """Gamma(s) = the integral of :meth:`track_force` over the head position from 0 to s, J/kg (N m/kg).
+
+        Exact: the mean over the train of the gradient's and the curves' piecewise-linear integrals,
+        (Gamma(s_j) - Gamma(s_i)) / (s_j - s_i) is the mean g over a step from s_i to s_j however often the gradient
+        changes inside it (the energy form of the coast regression, docs/estimator.md)."""
+        return self._potential(np.asarray(s_m, dtype=float), train_length_m) - self._potential(
+            np.zeros(1), train_length_m
+        )[0]
+
+    def _potential(self, s: np.ndarray, train_length_m: float) -> np.ndarray:
+        start = s - train_length_m
+        mean = self.gradient.mean_integral_over(start, s) + self.curvature.mean_integral_over(start, s)
+        return physics.GRAVITY * mean
+
     def tunnel_fraction(self, s_m, train_length_m: float = 0.0) -> np.ndarray:
         """Fraction of the train (head at s) inside a tunnel, 0..1."""
         start = np.asarray(s_m, dtype=float) - train_length_m
@@ -149,11 +164,21 @@ class ScalarTrackTerms:
         self.curvature = ScalarPiecewise(track.curvature)
         self.tunnel = ScalarPiecewise(track.tunnel)
         self.limit = ScalarPiecewise(track.speed_limit)
+        a = -self.length
+        self._potential_origin = physics.GRAVITY * (
+            self.gradient.mean_integral_over(a, 0.0) + self.curvature.mean_integral_over(a, 0.0)
+        )
 
     def track_force(self, s: float) -> float:
         """g(s) averaged over the train, N/kg."""
         a = s - self.length
         return physics.GRAVITY * (self.gradient.mean_over(a, s) + self.curvature.mean_over(a, s))
+
+    def track_force_integral(self, s: float) -> float:
+        """``Track.track_force_integral`` at s, J/kg."""
+        a = s - self.length
+        potential = physics.GRAVITY * (self.gradient.mean_integral_over(a, s) + self.curvature.mean_integral_over(a, s))
+        return potential - self._potential_origin
 
     def tunnel_fraction(self, s: float) -> float:
         """Fraction of the train inside a tunnel, 0..1."""

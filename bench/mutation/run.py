@@ -96,11 +96,19 @@ def main() -> int:
     print("| mutation | file | bug | tests | result |\n|---|---|---|---|---|")
     for m, r in zip(chosen, results):
         tests = ", ".join(Path(t).name for t in m.tests)
-        print(f"| {m.name} | `{m.path}` | {m.description} | {tests} | {r['status']} |", flush=True)
-    killed = sum(r["status"] == "killed" for r in results)
-    print(f"score: {killed} of {len(results)} killed ({killed / max(len(results), 1):.0%})")
+        if m.survives:
+            r["expected"] = "survives"
+        result = r["status"] + (" (expected: no bug)" if m.survives else "")
+        print(f"| {m.name} | `{m.path}` | {m.description} | {tests} | {result} |", flush=True)
+    bugs = [r for m, r in zip(chosen, results) if not m.survives]
+    killed = sum(r["status"] == "killed" for r in bugs)
+    print(f"score: {killed} of {len(bugs)} killed ({killed / max(len(bugs), 1):.0%})"
+          + (f"; {len(results) - len(bugs)} mutant(s) that are no bug left out" if len(bugs) < len(results) else ""))
+    for r in results:
+        print(f"  {r['name']}: {r['status']} by {r['by']}")
     args.json.parent.mkdir(parents=True, exist_ok=True)
-    args.json.write_text(json.dumps({"killed": killed, "total": len(results), "results": results}, indent=1) + "\n")
+    doc = {"killed": killed, "total": len(bugs), "not_bugs": len(results) - len(bugs), "results": results}
+    args.json.write_text(json.dumps(doc, indent=1) + "\n")
     return 0
 
 

@@ -51,6 +51,7 @@ FAMILY_DIR = REPO / "build" / "validation" / "family"
 EXTERNAL_DIR = (REPO / ".." / "shared" / "validation" / "runs").resolve()
 SCORES_DIR = REPO / "build" / "validation"
 TRUTH_SUFFIX = ".validation-truth.json"
+ENERGY_PERIOD_S = 5.0  # s: the oracle takes the energy form from here on (UKFConfig.coast_energy_period)
 V_CAP = 80.0 * KMH  # v_ref = min(80 km/h, 0.8 v_max), m/s
 V_HIGH = 120.0 * KMH  # the second reference speed where the run reaches it, m/s
 MIN_COAST_S = 20.0  # oracle: truly coasting stretches of at least this long, s
@@ -187,35 +188,51 @@ class CoastData:
 def coast_equations(
     ms: Sequence[Any], first_ns: int, stretches: Sequence[tuple[float, float]], tunnel_factor: float
 ) -> CoastData:
-    """One equation per consecutive pair of measurements (same run_id) inside one coasting stretch."""
+    """One equation per consecutive pair of measurements (same run_id) inside one coasting stretch: the time form
+    -(v_j - v_i) / dt - g = r(v), or, at 5 s sampling and sparser where the measurements carry the track force's
+    integral Gamma(s), the energy form -(E_j - E_i) / (s_j - s_i) = mean r over the step with E = v^2/2 + Gamma
+    (the gradient's changes inside a 200-300 m step are then exact; the product uses the same form there)."""
     t = np.array([(m.stamp_ns - first_ns) * 1e-9 for m in ms])
     v = np.array([m.v for m in ms])
     g = np.array([m.track_force for m in ms])
     tun = np.array([m.tunnel_fraction for m in ms])
     rid = np.array([m.run_id for m in ms])
+    s = np.array([m.s for m in ms])
+    gamma = np.array([getattr(m, "track_force_integral", math.nan) for m in ms])
+    energy = t.size > 2 and float(np.median(np.diff(t))) >= ENERGY_PERIOD_S and bool(np.all(np.isfinite(gamma)))
+    e = 0.5 * v * v + gamma
     ys, hs, pairs = [], [], []
     for a, b in stretches:
         inside = np.flatnonzero((t >= a - 1e-6) & (t <= b + 1e-6))
         for i, j in itertools.pairwise(inside):
             if j != i + 1 or rid[i] != rid[j] or t[j] <= t[i]:
                 continue
-            vbar = 0.5 * (v[i] + v[j])
             k = 1.0 + tunnel_factor * 0.5 * (tun[i] + tun[j])
-            ys.append(-(v[j] - v[i]) / (t[j] - t[i]) - 0.5 * (g[i] + g[j]))
-            hs.append([1.0, vbar, k * vbar * vbar])
-            pairs.append((int(i), int(j), float(t[j] - t[i])))
+            if energy:
+                ds = s[j] - s[i]
+                if ds <= 1.0:
+                    continue
+                ys.append(-(e[j] - e[i]) / ds)
+                hs.append([1.0, 0.5 * (v[i] + v[j]), k * 0.5 * (v[i] * v[i] + v[j] * v[j])])
+                pairs.append((int(i), int(j), float(ds), float(v[i]), float(v[j])))
+            else:
+                vbar = 0.5 * (v[i] + v[j])
+                ys.append(-(v[j] - v[i]) / (t[j] - t[i]) - 0.5 * (g[i] + g[j]))
+                hs.append([1.0, vbar, k * vbar * vbar])
+                pairs.append((int(i), int(j), float(t[j] - t[i]), 1.0, 1.0))
     seconds = float(sum(b - a for a, b in stretches))
     return CoastData(np.array(ys), np.array(hs).reshape(-1, 3), difference_covariance(pairs), len(stretches), seconds)
 
 
-def difference_covariance(pairs: Sequence[tuple[int, int, float]]) -> np.ndarray:
-    """D = B B^T for equations (n_j - n_i) / dt over independent unit sample noises n (1/s^2)."""
-    used = sorted({i for i, _, _ in pairs} | {j for _, j, _ in pairs})
+def difference_covariance(pairs: Sequence[tuple[int, int, float, float, float]]) -> np.ndarray:
+    """D = B B^T for equations (w_j n_j - w_i n_i) / d over independent unit sample noises n (pairs (i, j, d, w_i,
+    w_j): d = dt and w = 1 in the time form, d = ds and w = v in the energy form)."""
+    used = sorted({p[0] for p in pairs} | {p[1] for p in pairs})
     col = {k: c for c, k in enumerate(used)}
     B = np.zeros((len(pairs), len(used)))
-    for row, (i, j, dt) in enumerate(pairs):
-        B[row, col[i]] = -1.0 / dt
-        B[row, col[j]] = 1.0 / dt
+    for row, (i, j, d, wi, wj) in enumerate(pairs):
+        B[row, col[i]] = -wi / d
+        B[row, col[j]] = wj / d
     return B @ B.T
 
 

@@ -12,6 +12,7 @@
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 from repo_paths import REPO, validation_module
 
@@ -84,3 +85,38 @@ def test_held_out_family_runs_within_the_bounds(held_out):
         assert abs(s.err) <= HELD_OUT[s.bag], (s.bag, s.err, s.prior_err)
         assert s.inside_2sigma, (s.bag, s.err, s.two_sigma_pct)
         assert abs(s.err) < abs(s.prior_err) - 5.0
+
+
+ECO_10S_RUNS = 10  # the report half of eco_stadelhofen (20 runs, 60 samples each: a few seconds)
+
+
+@pytest.fixture(scope="module")
+def eco_10s(tmp_path_factory: pytest.TempPathFactory):
+    out = tmp_path_factory.mktemp("eco10s")
+    specs = [s for s in family.all_specs() if s.family.name == "eco_stadelhofen" and family.split_of(s.k) == "report"]
+    assert len(specs) == ECO_10S_RUNS
+    for spec in specs:
+        family.generate(spec, out)
+    family.write_csv(specs, out)
+    return [score.score_run(e, UKFConfig()) for e in score.read_runs(out, "report")]
+
+
+def test_eco_10s_on_a_steep_profile_within_its_data_limit(eco_10s):
+    """10 s speeds at 1 km/h, two 40-70 s coasts a run on gradients to 28 per mille changing every few dozen metres:
+    the energy form (docs/estimator.md, "Coasts at 10 s sampling"). The data limit (the oracle over the true coasts,
+    energy form) is 3.4 % here, above half the 5 % bound, so the bound is 1.5 x 3.4 = 5.1 %; measured 3.3 % (the
+    time form stayed at the prior: 17.9 % on the first four runs). Every run inside its 2 sigma; one run
+    (eco_stadelhofen_05) ends 2.6 points worse than its prior, where the oracle over its true coasts is 3 points
+    worse too: the data mislead there (docs/estimator.md, Limitations)."""
+    errs = [abs(s.err) for s in eco_10s]
+    oracle = [abs(s.oracle_err) for s in eco_10s if s.oracle_err is not None]
+    assert len(oracle) == ECO_10S_RUNS
+    limit = float(np.median(oracle))
+    assert float(np.median(errs)) <= max(5.0 if limit < 2.5 else 1.5 * limit, 1.0)
+    assert float(np.median(errs)) < 0.5 * float(np.median([abs(s.prior_err) for s in eco_10s]))
+    assert all(s.inside_2sigma for s in eco_10s)
+    worse = [s.bag for s in eco_10s if abs(s.err) > abs(s.prior_err) + 2.0]
+    assert len(worse) <= 1, worse
+    for s in eco_10s:
+        if s.bag in worse:
+            assert abs(s.oracle_err) > abs(s.prior_err), (s.bag, s.err, s.prior_err, s.oracle_err)

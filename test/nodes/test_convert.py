@@ -123,6 +123,7 @@ def test_measurement_to_msg_is_the_constructed_message(m):
         s_variance=float(m.s_variance), v_variance=float(m.v_variance), cross_track=float(m.cross_track),
         speed_limit=float(m.speed_limit), tunnel_fraction=float(m.tunnel_fraction), power_valid=bool(m.power_valid),
         power_consumed=float(m.power_consumed), power_regenerated=float(m.power_regenerated),
+        track_force_integral=float(m.track_force_integral),
     )  # fmt: skip
     msg = measurement_to_msg(m, "line")
     _same(msg, reference)
@@ -130,6 +131,17 @@ def test_measurement_to_msg_is_the_constructed_message(m):
     _same_cdr(measurement_to_cdr(m, "intercity_32km"), measurement_to_msg(m, "intercity_32km"))
     back = measurement_from_msg(msg)
     assert _fields(measurement_to_msg(back, "line")) == _fields(msg)
+
+
+def test_track_force_integral_left_at_the_message_default_reads_as_unknown():
+    """A publisher that does not fill track_force_integral leaves 0.0: NaN (unknown) unless s is 0, where Gamma is
+    0; the value is kept otherwise (the estimators then take the energy form at 10 s, docs/estimator.md)."""
+    msg = measurement_to_msg(Measurement(0, 1200.0, 20.0, 0.05, track_force_integral=0.0), "line")
+    assert math.isnan(measurement_from_msg(msg).track_force_integral)
+    msg = measurement_to_msg(Measurement(0, 0.0, 20.0, 0.05, track_force_integral=0.0), "line")
+    assert measurement_from_msg(msg).track_force_integral == 0.0
+    msg = measurement_to_msg(Measurement(0, 1200.0, 20.0, 0.05, track_force_integral=-61.25), "line")
+    assert measurement_from_msg(msg).track_force_integral == -61.25
 
 
 def test_estimate_to_msg_is_the_constructed_message():

@@ -17,6 +17,8 @@ from __future__ import annotations
 
 import argparse
 import csv
+import dataclasses
+import math
 import sys
 import time
 from pathlib import Path
@@ -66,7 +68,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="no composition when several lengths fall in the interval (the paper's text)",
     )
     parser.add_argument("--use-releases", action="store_true", help="fit release passages too (tail at section end)")
-    parser.add_argument("--release-offset", type=float, default=0.0, help="known release delay to subtract, s")
+    parser.add_argument(
+        "--release-offset",
+        default="0",
+        help="release delay of the detectors to subtract, s, or 'auto': estimate it from the data (default 0)",
+    )
     parser.add_argument("--popsize", type=int, default=CalibrationConfig.popsize, help="DE population per variable")
     parser.add_argument("--maxiter", type=int, default=CalibrationConfig.maxiter, help="DE generations at most")
     parser.add_argument("--atol", type=float, default=CalibrationConfig.atol, help="DE convergence: objective std, s")
@@ -90,6 +96,7 @@ def run(args: argparse.Namespace) -> int:
     if args.limit > 0:
         runs = dict(list(runs.items())[: args.limit])
     truth = load_truth(args.truth) if args.truth else None
+    auto_offset, offset = _release_offset(args.release_offset)
     workers = args.workers if args.workers > 0 else available_workers()
     config = CalibrationConfig.from_mapping(
         {
@@ -97,7 +104,7 @@ def run(args: argparse.Namespace) -> int:
             "maxiter": args.maxiter,
             "atol": args.atol,
             "use_releases": bool(args.use_releases),
-            "release_offset_s": args.release_offset,
+            "release_offset_s": offset,
         },
         source="command line",
     )
@@ -119,7 +126,9 @@ def run(args: argparse.Namespace) -> int:
         seed=args.seed,
         workers=workers,
         progress=progress,
+        auto_release_offset=auto_offset,
     )
+    config = dataclasses.replace(config, release_offset_s=fleet.release_offset_s)  # the estimate with "auto"
     out = Path(args.out)
     (out / "plots").mkdir(parents=True, exist_ok=True)
     observations = {
@@ -213,6 +222,19 @@ def _robustness(args, fleet, runs, track, types, stops, config, workers, out: Pa
         "n": len(rob.results),
         "rows": {r.name: {"default": r.default, "mean": r.mean, "std": r.std, "std_pct": r.cv_pct} for r in rob.rows},
     }
+
+
+def _release_offset(text: str) -> tuple[bool, float]:
+    """(estimate from the data, fixed offset in s) from --release-offset."""
+    if text.strip().lower() == "auto":
+        return True, 0.0
+    try:
+        value = float(text)
+    except ValueError:
+        raise UsageError(f"--release-offset: expected seconds or 'auto', got {text!r}") from None
+    if not math.isfinite(value) or not -5.0 <= value <= 10.0:
+        raise UsageError(f"--release-offset: {value:g} s is outside [-5, 10] s")
+    return False, value
 
 
 def _stops(track, names: str | None) -> list[float]:

@@ -43,45 +43,20 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..train import Davis, TrainSpec
-from .effort import PowerEffort
+from .coast_energy import energy_bounds, energy_equations, energy_sigma_v, step_grade_error, uses_energy_form
+from .coast_types import (
+    POWER_DRIVE,
+    POWER_NONE,
+    POWER_UNKNOWN,
+    CoastSettings,
+    RunArrays,
+    Stretch,
+    davis_value,
+    power_states,
+)
 
 _MIN_SPEED_NOISE = 0.002  # m/s: floor of the estimated speed noise
 _SHAPE_SPEED = 20.0  # m/s: speed at which a zero coefficient's floor std is set
-
-
-@dataclass(frozen=True)
-class CoastSettings:
-    """The coast regression's settings (UKFConfig fields of the same names; units in UKFConfig)."""
-
-    prior_scale_std: float = 0.18
-    prior_coefficient_std: float = 0.10
-    coast_ratio_min: float = 0.4
-    coast_ratio_max: float = 2.5
-    coast_hold_sigmas: float = 3.0
-    coast_slope_precision: float = 0.2
-    coast_window_min: float = 10.0
-    coast_window_samples: float = 4.0
-    coast_min_duration: float = 12.0
-    coast_stretch_std: float = 0.03
-    coast_min_speed: float = 5.0
-    use_power: bool = True
-    power_coasting: bool = True
-    power_threshold: float = 0.005
-    max_gap: float = 30.0
-
-    @classmethod
-    def from_config(cls, config) -> CoastSettings:
-        """From a UKFConfig (or anything with the same attribute names)."""
-        flags = ("use_power", "power_coasting")
-        names = [f for f in cls.__dataclass_fields__ if f not in ("max_gap", *flags)]
-        values: dict = {n: float(getattr(config, n)) for n in names}
-        values.update({n: bool(getattr(config, n)) for n in flags})
-        return cls(**values)
-
-    @property
-    def power_decides(self) -> bool:
-        """Measured power marks coasting (no traction, no regeneration) and excludes traction and braking."""
-        return self.use_power and self.power_coasting
 
 
 def prior_covariance(davis: Davis | tuple[float, float, float], scale_std: float, coefficient_std: float) -> np.ndarray:
@@ -92,11 +67,6 @@ def prior_covariance(davis: Davis | tuple[float, float, float], scale_std: float
     r_c = r[0] + r[1] * vc + r[2] * vc * vc
     floor = 0.05 * abs(r_c) / vc ** np.arange(3)
     return scale_std**2 * np.outer(r, r) + np.diag(np.maximum(coefficient_std * np.abs(r), floor) ** 2)
-
-
-def davis_value(r: np.ndarray | tuple[float, float, float], v: float | np.ndarray) -> float | np.ndarray:
-    """r0 + r1 v + r2 v^2 (N/kg)."""
-    return r[0] + (r[1] + r[2] * v) * v
 
 
 def noise_from_differences(d2: np.ndarray, d3: np.ndarray, quantum: float) -> float:
@@ -156,89 +126,6 @@ def local_slopes(
     a[ok] = (stv[ok] - st[ok] * sv[ok] / cnt[ok]) / sxx[ok]
     se[ok] = 1.0 / np.sqrt(sxx[ok])
     return a, se
-
-
-POWER_UNKNOWN, POWER_NONE, POWER_DRIVE = 0, 1, 2
-"""Per sample: no power measurement; neither traction nor regeneration (coasting, or a pneumatic brake); traction or
-electric braking."""
-
-
-def power_states(
-    train: TrainSpec, valid: np.ndarray, consumed_w: np.ndarray, regenerated_w: np.ndarray, threshold: float
-) -> np.ndarray:
-    """POWER_* per sample from the pantograph power: traction where the wheel power eta (P - P_aux) / (gamma m)
-    exceeds ``threshold`` (W/kg), electric braking where anything is regenerated."""
-    wheel = PowerEffort(train).wheel_power(np.asarray(consumed_w, dtype=float))
-    drive = (wheel > threshold) | (np.asarray(regenerated_w, dtype=float) > 0.0)
-    out = np.where(drive, POWER_DRIVE, POWER_NONE).astype(np.int8)
-    out[~np.asarray(valid, dtype=bool)] = POWER_UNKNOWN
-    return out
-
-
-@dataclass
-class RunArrays:
-    """The samples a regression looks at (one recording; several run_ids allowed, in time order)."""
-
-    t: np.ndarray  # s
-    v: np.ndarray  # m/s, measured
-    g: np.ndarray  # N/kg, track force at the measured position
-    tunnel: np.ndarray  # fraction of the train in a tunnel
-    run: np.ndarray  # run id
-    power: np.ndarray | None = None  # POWER_* per sample (None: no power measured)
-
-    @classmethod
-    def from_columns(
-        cls,
-        t: np.ndarray,
-        v: np.ndarray,
-        g: np.ndarray,
-        tunnel: np.ndarray,
-        run: np.ndarray,
-        power_valid: np.ndarray,
-        power_consumed_w: np.ndarray,
-        power_regenerated_w: np.ndarray,
-        train: TrainSpec | None = None,
-        settings: CoastSettings | None = None,
-    ) -> RunArrays:
-        """From measurement columns (t in s); with the train, the power states of the traction power (if any)."""
-        power = None
-        if train is not None and np.any(power_valid):
-            threshold = (settings or CoastSettings()).power_threshold
-            power = power_states(train, power_valid, power_consumed_w, power_regenerated_w, threshold)
-        return cls(
-            t=np.asarray(t, dtype=float),
-            v=np.asarray(v, dtype=float),
-            g=np.asarray(g, dtype=float),
-            tunnel=np.asarray(tunnel, dtype=float),
-            run=np.asarray(run, dtype=np.int64),
-            power=power,
-        )
-
-    @classmethod
-    def from_series(cls, series, train: TrainSpec | None = None, settings: CoastSettings | None = None) -> RunArrays:
-        """From a MeasurementSeries (t from its first stamp): :meth:`from_columns`."""
-        t = (series.stamp_ns - series.stamp_ns[0]) * 1e-9 if len(series) else np.zeros(0)
-        return cls.from_columns(
-            t, series.v, series.track_force, series.tunnel_fraction, series.run_id, series.power_valid,
-            series.power_consumed, series.power_regenerated, train, settings,
-        )  # fmt: skip
-
-
-@dataclass
-class Stretch:
-    """One coasting stretch used by the regression: its samples' centred equations y = A r + noise (step 5)."""
-
-    t_start: float  # s
-    t_end: float  # s
-    speed_min: float  # m/s
-    speed_max: float  # m/s
-    A: np.ndarray  # (n, 3) centred -(t - t0, integral of v, integral of v^2 (1 + f_tun tunnel)): s, m, m^2/s
-    y: np.ndarray  # (n,) centred v + integral of g, m/s
-    tau: np.ndarray  # (n,) centred time, s (the direction of an error common to the coast)
-    noise_var: float  # (m/s)^2, the speed noise's variance per sample
-    bias_std: float  # N/kg, std of the error common to the coast
-    run: int = 0
-    group: int = 0  # stretches of one coast (split by a short gap) share their bias
 
 
 @dataclass
@@ -478,9 +365,7 @@ def monotonic_parts(arr: RunArrays) -> list[RunArrays]:
     parts = []
     for a, b in itertools.pairwise(edges):
         if b - a >= 3:
-            sl = slice(a, b)
-            power = arr.power[sl] if arr.power is not None else None
-            parts.append(RunArrays(arr.t[sl], arr.v[sl], arr.g[sl], arr.tunnel[sl], arr.run[sl], power))
+            parts.append(arr.part(slice(a, b)))
     return parts
 
 
@@ -497,9 +382,22 @@ def fit_coasts(
     window = math.nan
     stretches: list[Stretch] = []
     for part in monotonic_parts(arr):  # a clock reset starts the time base anew: each part on its own
-        bounds, _, window = detect(part, cfg, r_prior, sv)
-        for k0, k1, _, _ in bounds:
-            st = stretch_equations(part, k0, k1, cfg, r_prior, sv, train.tunnel_factor)
+        period = _period(part.t)
+        if uses_energy_form(
+            part, cfg, period, step_grade_error(part, r_prior, cfg.coast_min_speed)
+        ):  # sparse samples: coast_energy
+            sv_e = energy_sigma_v(part, sv)
+            bounds, _ = energy_bounds(part, cfg, r_prior, sv_e, period)
+            window = cfg.coast_energy_window * period
+            equations = [
+                energy_equations(part, k0, k1, cfg, r_prior, sv_e, train.tunnel_factor) for k0, k1, _, _ in bounds
+            ]
+        else:
+            bounds, _, window = detect(part, cfg, r_prior, sv)
+            equations = [
+                stretch_equations(part, k0, k1, cfg, r_prior, sv, train.tunnel_factor) for k0, k1, _, _ in bounds
+            ]
+        for st in equations:
             assign_group(st, stretches[-1] if stretches else None, 2.0 * window)
             stretches.append(st)
     r, cov = posterior(r_prior, P0, stretches)
@@ -540,8 +438,15 @@ class CoastRegression:
         self._tun: list[float] = []
         self._run: list[int] = []
         self._power: list[int] = []
+        self._s: list[float] = []  # m
+        self._gamma: list[float] = []  # J/kg, the track force's integral (NaN: unknown)
+        self._s_var: list[float] = []  # m^2
+        self._v_var: list[float] = []  # (m/s)^2, the sensor's stated variance
         self._d2: deque[float] = deque(maxlen=self.NOISE_SAMPLES)  # second differences of the moving speeds
         self._d3: deque[float] = deque(maxlen=self.NOISE_SAMPLES)  # third differences (noise estimate)
+        self._prior_floats = tuple(float(x) for x in self.prior)
+        self._grade, self._grade_at, self._grade_seen = math.nan, 0, 0
+        self._grade_errors: deque[float] = deque(maxlen=self.NOISE_SAMPLES)  # coast_energy.step_grade_error's terms
         self._quantum = math.inf
         self._v_max = 0.0
         self._last_detect = -math.inf
@@ -558,6 +463,14 @@ class CoastRegression:
         """Back to the prior (forget every stretch)."""
         self.__init__(self._train, self.settings, Davis(*self.prior))
 
+    def grade_error(self) -> float:
+        """coast_energy.step_grade_error over the moving steps seen (the latest NOISE_SAMPLES), recomputed after
+        every 16 new steps."""
+        if self._grade_seen - self._grade_at >= 16 or not math.isfinite(self._grade):
+            self._grade = float(np.median(self._grade_errors)) if self._grade_errors else 0.0
+            self._grade_at = self._grade_seen
+        return self._grade
+
     def sigma_v(self) -> float:
         """Current speed-noise estimate (m/s); recomputed after every 64 new second differences."""
         if self._d2_seen - self._sv_at >= 64 or not math.isfinite(self._sv):
@@ -570,8 +483,21 @@ class CoastRegression:
             return 0.08
         return noise_from_differences(np.asarray(self._d2), np.asarray(self._d3), q)
 
-    def push(self, t: float, v: float, g: float, tunnel: float, run_id: int, power: int = POWER_UNKNOWN) -> bool:
-        """One measurement (t in s, v m/s, g N/kg, power a POWER_* state); True when r or its covariance changed."""
+    def push(
+        self,
+        t: float,
+        v: float,
+        g: float,
+        tunnel: float,
+        run_id: int,
+        power: int = POWER_UNKNOWN,
+        s: float = math.nan,
+        gamma: float = math.nan,
+        s_var: float = 0.0,
+        v_var: float = math.nan,
+    ) -> bool:
+        """One measurement (t in s, v m/s, g N/kg, power a POWER_* state; s in m, gamma = the track force's integral
+        in J/kg, s_var m^2 and v_var (m/s)^2 for the energy form); True when r or its covariance changed."""
         if not (math.isfinite(t) and math.isfinite(v) and math.isfinite(g)):
             return False
         if self._t and t <= self._t[-1]:
@@ -588,12 +514,27 @@ class CoastRegression:
                 self._d2_seen += 1
                 if len(self._v) >= 3 and self._run[-3] == run_id and self._v[-2] > 5.0:
                     self._d3.append(v - 3.0 * self._v[-1] + 3.0 * self._v[-2] - self._v[-3])
+        if self._s and self._v and self._run[-1] == run_id and math.isfinite(gamma) and math.isfinite(self._gamma[-1]):
+            ds = s - self._s[-1]
+            v_min = self.settings.coast_min_speed
+            if ds > 1.0 and v >= v_min and self._v[-1] >= v_min:
+                v_mid = 0.5 * (v + self._v[-1])
+                r0, r1, r2 = self._prior_floats
+                exact = (gamma - self._gamma[-1]) / ds
+                self._grade_errors.append(
+                    abs(exact - 0.5 * (g + self._g[-1])) / max(r0 + (r1 + r2 * v_mid) * v_mid, 1e-6)
+                )
+                self._grade_seen += 1
         self._t.append(t)
         self._v.append(v)
         self._g.append(g)
         self._tun.append(tunnel if math.isfinite(tunnel) else 0.0)
         self._run.append(int(run_id))
         self._power.append(int(power))
+        self._s.append(s)
+        self._gamma.append(gamma)
+        self._s_var.append(s_var if math.isfinite(s_var) else 0.0)
+        self._v_var.append(v_var)
         self._v_max = max(self._v_max, v)
         if len(self._t) >= 2:
             self._period = self._t[-1] - self._t[-2]
@@ -624,25 +565,70 @@ class CoastRegression:
             return False
         sv = self.sigma_v()
         period = _period(arr.t)
+        if period >= cfg.coast_energy_period:  # the energy form's columns only where it may apply
+            arr.s, arr.gamma = np.asarray(self._s), np.asarray(self._gamma)
+            arr.s_var, arr.v_var = np.asarray(self._s_var), np.asarray(self._v_var)
+            if uses_energy_form(arr, cfg, period, self.grade_error()):
+                return self._detect_energy(arr, sv, period)
         self.window = window = slope_window(cfg, sv, period, self.prior, self._v_max)
         by_speed, by_power = candidate_steps(arr, cfg, self.prior, sv, window, period)
         step = by_speed | by_power
         trim = 0.5 * window
         bounds = bounds_of(arr, by_speed, by_power, cfg, window, period)
         horizon = arr.t[-1] - 0.5 * window - trim  # older samples serve no stretch still open
-        pieces = self._new_pieces(arr, bounds, arr.t[-1] - 0.5 * window - period, period)
+        decided = arr.t[-1] - 0.5 * window - period
+        pieces = self._new_pieces(arr, bounds, decided, max(cfg.coast_min_duration, 3.0 * period))
+        make = [stretch_equations(arr, k0, k1, cfg, self.prior, sv, self.tunnel_factor) for k0, k1 in pieces]
+        return self._add(arr, pieces, make, step, window, horizon)
+
+    def _detect_energy(self, arr: RunArrays, sv: float, period: float) -> bool:
+        """_detect in the energy form (sparse samples, :mod:`coast_energy`). A stretch is over once no window that
+        could still hold the sample after it can pass: each is complete, or holds a sample where the train is too
+        slow, a new run or a gap (a coast before a stop is over at the stop). Kept are the samples from W before
+        the first stretch not over yet, or before the horizon."""
+        cfg = self.settings
+        sv_e = energy_sigma_v(arr, sv)
+        bounds, flag = energy_bounds(arr, cfg, self.prior, sv_e, period)
+        m = int(cfg.coast_energy_window)
+        self.window = window = m * period
+        n = arr.t.size
+        broken = arr.v < cfg.coast_min_speed  # a window holding such a sample cannot pass
+        broken[1:] |= (arr.run[1:] != arr.run[:-1]) | (np.diff(arr.t) > min(cfg.max_gap, 2.5 * period))
+        first_used = int(np.searchsorted(arr.t, self._used_until, side="right"))
+        min_duration = max(cfg.coast_min_duration, 3.0 * period)
+        pieces, waiting = [], []
+        for k0, k1, _, _ in bounds:
+            k0 = max(k0, first_used)  # a stretch grown back into samples already used starts after them
+            if k1 - k0 < 2 or arr.t[k1] - arr.t[k0] < min_duration:
+                continue
+            over = k1 + m <= n - 1 or bool(np.any(broken[k1 + 1 : k1 + m + 1]))
+            (pieces if over and k1 + 1 < n else waiting).append((k0, k1))
+        make = [energy_equations(arr, k0, k1, cfg, self.prior, sv_e, self.tunnel_factor) for k0, k1 in pieces]
+        horizon = arr.t[-1] - m * period
+        if waiting:
+            horizon = min(horizon, float(arr.t[waiting[0][0]]))
+        return self._add(arr, pieces, make, flag, window, horizon)
+
+    def _add(
+        self,
+        arr: RunArrays,
+        pieces: list[tuple[int, int]],
+        stretches: list[Stretch],
+        step: np.ndarray,
+        window: float,
+        horizon: float,
+    ) -> bool:
+        """Take the new stretches into the posterior; drop the samples no open stretch needs (those from W before
+        the first candidate run not over yet, or before the horizon)."""
         changed = False
         if pieces:
-            for k0, k1 in pieces:
-                st = stretch_equations(arr, k0, k1, cfg, self.prior, sv, self.tunnel_factor)
+            for st in stretches:
                 assign_group(st, self.stretches[-1] if self.stretches else None, 2.0 * window)
                 self.stretches.append(st)
             r, cov = self._posterior()
             self.r, self.covariance = nonnegative(r, cov), cov
             self._used_until = float(arr.t[pieces[-1][1]])
             changed = True
-        # the next detection needs the samples from W before the first candidate run not over yet (or before the
-        # horizon): the older ones are dropped
         keep_t = horizon - window
         idx = np.flatnonzero(step)
         late = idx[arr.t[idx] > horizon] if idx.size else idx
@@ -670,13 +656,12 @@ class CoastRegression:
         return solve_information(add_coast(self._closed_info, self.stretches[first_open:]))
 
     def _new_pieces(
-        self, arr: RunArrays, bounds: list[tuple[int, int, int, int]], decided: float, period: float
+        self, arr: RunArrays, bounds: list[tuple[int, int, int, int]], decided: float, min_duration: float
     ) -> list[tuple[int, int]]:
         """Sample ranges to add now: each stretch that is over (the step after its last candidate step is decided:
         before ``decided``, its slope window complete) and not used yet. A long coast is used when it is over:
         taking it in pieces while it lasts was tried and cost accuracy (tune half 1.9 -> 4.3 % median: the
         pieces cut the chunks elsewhere, and their ends are decided on shorter evidence)."""
-        min_duration = max(self.settings.coast_min_duration, 3.0 * period)
         out = []
         for k0, k1, _, j in bounds:
             over = j + 1 < arr.t.size and arr.t[j + 1] <= decided
@@ -687,7 +672,8 @@ class CoastRegression:
     def _keep_from(self, k: int) -> None:
         if k <= 0:
             return
-        for buf in (self._t, self._v, self._g, self._tun, self._run, self._power):
+        for buf in (self._t, self._v, self._g, self._tun, self._run, self._power, self._s, self._gamma, self._s_var,
+                    self._v_var):  # fmt: skip
             del buf[:k]
 
 

@@ -204,6 +204,23 @@ class UKFConfig(ParamSet):
         high=10.0,
     )
     coast_min_speed: float = param(5.0, "coast_regression: no coasting below this speed", unit="m/s", low=0.0)
+    coast_energy_period: float = param(
+        5.0,
+        "coast_regression: at this sample interval and longer, coasts are found and fitted in the energy form "
+        "(v^2/2 + the track force's integral over s; docs/estimator.md, 'Coasts at 10 s sampling'), shorter ones in "
+        "the time form",
+        unit="s",
+        low=0.0,
+    )
+    coast_energy_window: int = param(
+        4, "coast_regression, energy form: samples in one window of the coasting test", low=3, high=50
+    )
+    coast_energy_grade_error: float = param(
+        0.1,
+        "coast_regression: the energy form needs the gradient to change within the steps: the median over the "
+        "moving steps of |mean g over the step - the trapezoid of g at its ends| at least this fraction of r",
+        low=0.0,
+    )
     # -- safeguards and health -----------------------------------------------------------------
     nonnegative: str = param(
         "project",
@@ -350,6 +367,14 @@ class RegimeConfig(ParamSet):
         low=0.0,
         high=0.75,
         low_open=True,
+    )
+    imm_standstill_speed: float = param(
+        0.25,
+        "imm: a sample whose measured speed (the filtered one where none) is slower is standing (UNKNOWN) for the "
+        "regime and restarts the imm; below standstill_speed (which the phase keeps) so that the first step of speeds "
+        "rounded to 1 km/h (0.28 m/s), a departure or the end of a stop, is moving",
+        unit="m/s",
+        low=0.0,
     )
     effort_tolerance: float = param(
         0.025, "rule: |effort| within this is coasting; above traction, below braking", unit="N/kg", low=0.0

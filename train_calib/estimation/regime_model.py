@@ -11,6 +11,7 @@ import math
 
 from ..regime_codes import BRAKING, COASTING, CRUISING, TRACTION
 from .config import RegimeConfig
+from .effort import PowerEffort
 
 SQRT2 = math.sqrt(2.0)
 """sqrt(2), for the normal cdf via erf."""
@@ -43,3 +44,21 @@ def most_probable(p0: float, p1: float, p2: float, p3: float) -> int:
     if p3 > top:
         best = BRAKING
     return best
+
+
+POWER_OFF, POWER_TRACTION, POWER_REGEN = 0, 1, 2
+"""The traction power's state at a sample (``RegimeClassifier.classify(power=...)``): neither drawn for traction nor
+regenerated; drawn for traction (wheel power above the threshold); regenerated (electric braking)."""
+POWER_THRESHOLD = 0.005
+"""Wheel power per effective mass (W/kg) above which the power is traction (UKFConfig.power_threshold's default)."""
+
+
+def power_state(measurement, power: PowerEffort, threshold: float = POWER_THRESHOLD) -> int | None:
+    """POWER_* of a measurement's traction power (``power_valid``, ``power_consumed``, ``power_regenerated`` in W),
+    with the train's efficiency, effective mass and auxiliary power (``PowerEffort``); None where no valid power was
+    measured."""
+    if measurement is None or not measurement.power_valid:
+        return None
+    if measurement.power_regenerated > 0.0:
+        return POWER_REGEN
+    return POWER_TRACTION if power.wheel_power(measurement.power_consumed) > threshold else POWER_OFF

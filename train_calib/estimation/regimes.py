@@ -66,7 +66,19 @@ import numpy as np
 
 from ..regime_codes import BRAKING, COASTING, CRUISING, REGIME_NAMES, TRACTION, UNKNOWN  # noqa: F401 (re-exported)
 from .config import RegimeConfig
-from .regime_model import DEFAULT_W, LOG_SQRT_2PI, SQRT2, START_PRIOR, most_probable, rule
+from .regime_imm import ImmFilter
+from .regime_model import (  # noqa: F401 (POWER_* re-exported)
+    DEFAULT_W,
+    LOG_SQRT_2PI,
+    POWER_OFF,
+    POWER_REGEN,
+    POWER_TRACTION,
+    SQRT2,
+    START_PRIOR,
+    most_probable,
+    power_state,
+    rule,
+)
 from .regimes_batch import classify_hmm
 
 
@@ -96,6 +108,7 @@ class RegimeClassifier:
     __slots__ = (
         "_b_hi",
         "_b_lo",
+        "_g_prev",
         "_hmm",
         "_imm",
         "_known_log",
@@ -111,6 +124,7 @@ class RegimeClassifier:
         "_t_const",
         "_t_min",
         "_v",
+        "_v_imm",
         "_vc2",
         "_w_last",
         "_w_rel",
@@ -121,8 +135,9 @@ class RegimeClassifier:
     def __init__(self, config: RegimeConfig | None = None) -> None:
         self.config = cfg = config if config is not None else RegimeConfig()
         self._hmm = cfg.method in ("hmm", "imm")  # imm: the hmm gives the phase
-        self._imm = _Imm(cfg) if cfg.method == "imm" else None
+        self._imm = ImmFilter(cfg) if cfg.method == "imm" else None
         self._v = cfg.standstill_speed
+        self._v_imm = cfg.imm_standstill_speed
         s = self._sigma = cfg.accel_noise_std
         self._log_norm = -LOG_SQRT_2PI - math.log(s)
         lam = self._lam = 1.0 / cfg.traction_accel_mean
@@ -147,6 +162,7 @@ class RegimeClassifier:
             self._imm.reset()
         self._w_last = math.nan
         self._w_speed = math.nan
+        self._g_prev: tuple[float, float] | None = None  # (s m, Gamma J/kg) of the last sample that had them
 
     @property
     def revised_previous(self) -> int | None:
@@ -187,6 +203,10 @@ class RegimeClassifier:
         opposing_force: float | None = None,
         speed_measured: float | None = None,
         time: float | None = None,
+        power: int | None = None,
+        track_force: float | None = None,
+        position: float | None = None,
+        track_force_integral: float | None = None,
     ) -> int:
         """Regime of the next sample of the run; its phase is :attr:`phase` afterwards.
 
@@ -195,7 +215,11 @@ class RegimeClassifier:
         ``opposing_force`` = resistance + track_force (N/kg), the force the effort works against. ``imm`` needs
         ``time`` (s, any origin) and the speed; it uses ``speed_measured`` (m/s; the filtered speed where it is
         None or NaN) and ``opposing_force`` (effort - acceleration without it). Without ``time`` or speed the
-        ``imm`` regime is the phase.
+        ``imm`` regime is the phase. ``power``: the traction power's state (POWER_*; None: not measured).
+        ``track_force`` (g at the sample, N/kg, part of ``opposing_force``), ``position`` (the measured s, m) and
+        ``track_force_integral`` (Gamma(s), J/kg, the integral of g over s): the imm takes the mean g over the step
+        since the previous sample that had them, (Gamma - Gamma_prev) / (s - s_prev), in place of g at the sample:
+        at 10 s the train runs 200-300 m in a step, over gradients that may change every few tens of metres.
         """
         self._revised = None
         self._phase = UNKNOWN
@@ -204,31 +228,58 @@ class RegimeClassifier:
         if e is None or a is None or math.isnan(e) or math.isnan(a):
             return UNKNOWN
         v = math.nan
+        standing = False
         if speed is not None:
             v = _float(speed)
             if v is None:
                 return UNKNOWN
-            if not v >= self._v:  # NaN too
+            standing = not v >= self._v  # NaN too
+            if standing:
                 self._prob = None
-                if self._imm is not None:
-                    self._imm.restart()
-                return UNKNOWN
+                if self._imm is None:
+                    return UNKNOWN
         if not self._hmm or not (math.isfinite(e) and math.isfinite(a)):
-            self._phase = rule(e, a, self.config)
+            self._phase = UNKNOWN if standing else rule(e, a, self.config)
             return self._phase
         w_given = _float(opposing_force) if opposing_force is not None else None
         if w_given is not None and not math.isfinite(w_given):
             w_given = None
-        self._phase = phase = self._filter(e, a, v, effort_known, w_given)
+        phase = UNKNOWN if standing else self._filter(e, a, v, effort_known, w_given)
+        self._phase = phase
         if self._imm is None:
             return phase
         t = _float(time) if time is not None else None
         if t is None or not math.isfinite(t) or not math.isfinite(v):
+            if standing:
+                self._imm.restart()
             return phase
         z = _float(speed_measured) if speed_measured is not None else None
         if z is None or not math.isfinite(z):
             z = v
-        return self._imm.step(t, z, w_given if w_given is not None else e - a)
+        if not z >= self._v_imm:  # standing for the imm: the measured speed (its first step, 1 km/h, is moving)
+            self._imm.restart()
+            return UNKNOWN
+        w_imm = w_given if w_given is not None else e - a
+        g_mean = self._step_track_force(position, track_force_integral)
+        g_here = _float(track_force) if track_force is not None else None
+        if g_mean is not None and g_here is not None and math.isfinite(g_here):
+            w_imm += g_mean - g_here
+        return self._imm.step(t, z, w_imm, power)
+
+    def _step_track_force(self, position: float | None, integral: float | None) -> float | None:
+        """The mean g (N/kg) over the step from the previous (s, Gamma) to this one; None where unknown or where the
+        train moved less than ``_STEP_MIN_M`` or more than ``_STEP_MAX_M``."""
+        s = _float(position) if position is not None else None
+        gamma = _float(integral) if integral is not None else None
+        if s is None or gamma is None or not (math.isfinite(s) and math.isfinite(gamma)):
+            return None
+        prev, self._g_prev = self._g_prev, (s, gamma)
+        if prev is None:
+            return None
+        ds = s - prev[0]
+        if not _STEP_MIN_M < abs(ds) < _STEP_MAX_M:
+            return None
+        return (gamma - prev[1]) / ds
 
     # -- the hidden Markov model ----------------------------------------------------------------------
     def _filter(self, e: float, a: float, v: float, known: bool | None, w_given: float | None) -> int:
@@ -292,168 +343,10 @@ class RegimeClassifier:
         return w
 
 
-_IMM_START = (0.85, 0.05, 0.05, 0.05)
-"""imm: probabilities of (TRACTION, CRUISING, COASTING, BRAKING) at the first moving sample: departing."""
-_IMM_START_ACCEL = (0.3, 0.0, None, -0.3)
-"""imm: the acceleration (m/s^2) each model starts from (None: the coasting -(r + g)); std _IMM_START_STD."""
-_IMM_START_STD = 0.5
-_IMM_CODES = (TRACTION, CRUISING, COASTING, BRAKING)
-_NOISE_FLOOR = 0.2
-"""imm: the learned speed noise stays above this share of ``imm_speed_noise_std``."""
-_NOISE_WEIGHT = 0.05
-"""imm: weight of one sample in the running mean of the absolute second differences (about 20 samples)."""
-_NOISE_MAX_DT = 2.0
-"""imm: the noise is learned from steps of at most this many seconds (over longer ones the acceleration changes)."""
-_GAUSS_ABS = math.sqrt(math.pi / 2.0)
-"""sigma / mean |x| of a zero-mean Gaussian."""
-
-
-class _Imm:
-    """The ``imm`` regime filter (module docstring): four Kalman filters of (speed v, acceleration a), mixed
-    between samples by the regime transition probabilities, weighed by their innovations. Plain floats: one
-    sample costs four 2x2 filter steps."""
-
-    __slots__ = (
-        "_adapt",
-        "_c2",
-        "_dwell",
-        "_h2",
-        "_mu",
-        "_noise",
-        "_noise0",
-        "_noise_min",
-        "_pmax",
-        "_q2",
-        "_r",
-        "_rel2",
-        "_t",
-        "_x",
-        "_z",
-    )
-
-    def __init__(self, cfg: RegimeConfig) -> None:
-        self._adapt = cfg.imm_adapt_noise
-        self._noise0 = cfg.imm_speed_noise_std
-        self._noise_min = _NOISE_FLOOR * cfg.imm_speed_noise_std
-        self._h2 = cfg.imm_hold_accel_std**2
-        self._c2 = cfg.imm_coast_accel_std**2
-        self._rel2 = cfg.resistance_rel_std**2
-        self._q2 = cfg.imm_accel_walk_std**2
-        self._dwell = cfg.imm_mean_dwell
-        self._pmax = cfg.imm_switch_max
-        self.reset()
-
-    def reset(self) -> None:
-        """An unrelated sequence follows: the configured speed noise, no regime."""
-        self._noise = self._noise0  # the sensor's noise, learned over the run (kept across stops)
-        self._r = self._noise0 * self._noise0
-        self._mu: list[float] | None = None
-        self._x: list[list[float]] = []  # per model [v, a, Pvv, Pva, Paa]
-        self._t = math.nan
-        self._z: tuple[float, float, float, float] | None = None  # previous speed, its time, step slope, step dt
-
-    def _learn_noise(self, t: float, z: float) -> None:
-        """The speed sensor's noise from the second differences of the measured speeds: a robust running mean of
-        their absolute values (each clipped at 3 times the current estimate: changes of acceleration are rare),
-        from the configured value, never below ``_NOISE_FLOOR`` of it; at sample periods up to ``_NOISE_MAX_DT``. A
-        stop keeps what was learned."""
-        prev = self._z
-        if prev is None or not t > prev[1]:
-            self._z = (z, t, math.nan, math.nan)
-            return
-        z1, t1, slope1, dt1 = prev
-        dt = t - t1
-        slope = (z - z1) / dt
-        self._z = (z, t, slope, dt)
-        if math.isnan(slope1) or not self._adapt or max(dt, dt1) > _NOISE_MAX_DT:
-            return
-        # slope - slope1 has variance sigma^2 (1/dt^2 + (1/dt + 1/dt1)^2 + 1/dt1^2) for white speed noise sigma
-        scale = math.sqrt(1.0 / (dt * dt) + (1.0 / dt + 1.0 / dt1) ** 2 + 1.0 / (dt1 * dt1))
-        x = min(abs(slope - slope1) / scale, 3.0 * self._noise)
-        mean_abs = (1.0 - _NOISE_WEIGHT) * self._noise / _GAUSS_ABS + _NOISE_WEIGHT * x
-        self._noise = max(_GAUSS_ABS * mean_abs, self._noise_min)
-        self._r = self._noise * self._noise
-
-    def restart(self) -> None:
-        """A standstill: the regimes start over, the learned noise stays."""
-        self._mu = None
-        self._z = None
-
-    def probabilities(self) -> tuple[float, ...] | None:
-        return tuple(self._mu) if self._mu is not None else None
-
-    @property
-    def speed_noise(self) -> float:
-        return self._noise
-
-    def step(self, t: float, z: float, w: float) -> int:
-        """The regime at time t (s) given the measured speed z (m/s) and r + g = w (N/kg)."""
-        self._learn_noise(t, z)
-        if self._mu is None or not t > self._t:  # first sample, or time not increasing: start over
-            r, s2 = self._r, _IMM_START_STD**2
-            self._mu = list(_IMM_START)
-            self._x = [[z, -w if a0 is None else a0, r, 0.0, s2] for a0 in _IMM_START_ACCEL]
-            self._t = t
-            return TRACTION
-        dt = t - self._t
-        self._t = t
-        switch = min(self._pmax, -math.expm1(-dt / self._dwell))
-        stay, off = 1.0 - switch, switch / 3.0
-        mu, xs, r = self._mu, self._x, self._r
-        coast_var = self._c2 + self._rel2 * w * w
-        out_x = []
-        weights = []
-        for j in range(4):
-            # mixing: model j's prior is the other models' posteriors weighed by P(i -> j)
-            c = [mu[i] * (stay if i == j else off) for i in range(4)]
-            cj = c[0] + c[1] + c[2] + c[3]
-            v0 = a0 = 0.0
-            for ci, x in zip(c, xs):
-                v0 += ci * x[0]
-                a0 += ci * x[1]
-            v0 /= cj
-            a0 /= cj
-            pvv = pva = paa = 0.0
-            for ci, x in zip(c, xs):
-                dv, da = x[0] - v0, x[1] - a0
-                pvv += ci * (x[2] + dv * dv)
-                pva += ci * (x[3] + dv * da)
-                paa += ci * (x[4] + da * da)
-            pvv /= cj
-            pva /= cj
-            paa /= cj
-            # prediction over dt
-            if j == 1 or j == 2:  # hold / coast: the model's own acceleration over the step
-                ap, va = (0.0, self._h2) if j == 1 else (-w, coast_var)
-                vp = v0 + dt * ap
-                qvv, qva, qaa = pvv + dt * dt * va, dt * va, va
-            else:  # traction / braking: a random walk
-                q = self._q2 * dt
-                ap = a0
-                vp = v0 + dt * a0
-                qaa = paa + q
-                qva = pva + dt * paa + 0.5 * dt * q
-                qvv = pvv + 2.0 * dt * pva + dt * dt * paa + dt * dt * q / 3.0
-            # update with the measured speed
-            sv = qvv + r
-            nu = z - vp
-            kv, ka = qvv / sv, qva / sv
-            an = ap + ka * nu
-            paa_n = max(qaa - ka * qva, 1e-12)
-            lik = math.exp(-0.5 * nu * nu / sv) / math.sqrt(2.0 * math.pi * sv)
-            if j == 0 or j == 3:  # the sign of the effort a + r + g: positive in traction, negative in braking
-                x = (an + w) / math.sqrt(paa_n)
-                lik *= 0.5 * math.erfc(-x / SQRT2 if j == 0 else x / SQRT2)
-            weights.append(cj * lik)
-            out_x.append([vp + kv * nu, an, qvv - kv * qvv, qva - kv * qva, paa_n])
-        total = weights[0] + weights[1] + weights[2] + weights[3]
-        if not total > 0.0 or not math.isfinite(total):  # every model rejects the sample: start over from it
-            self._mu = None
-            return self.step(t, z, w)
-        self._mu = [wt / total for wt in weights]
-        self._x = out_x
-        best = max(range(4), key=self._mu.__getitem__)
-        return _IMM_CODES[best]
+_STEP_MIN_M = 50.0
+"""imm: the mean g over a step is taken over at least this distance (m); shorter (standing, noise): g at the sample."""
+_STEP_MAX_M = 2000.0
+"""imm: ... and at most this distance (m); longer (a gap, a jump to another run): g at the sample."""
 
 
 def classify_regimes(
@@ -468,6 +361,10 @@ def classify_regimes(
     speed_measured=None,
     time=None,
     phase: bool = False,
+    power=None,
+    track_force=None,
+    position=None,
+    track_force_integral=None,
 ):
     """``RegimeClassifier.classify`` over a sequence in time order: uint8 array of the broadcast shape.
 
@@ -475,7 +372,9 @@ def classify_regimes(
     runs it (:mod:`.regimes_batch`: the same operations arranged for numpy), so the result is the node's
     message for message. ``smooth`` (``hmm`` only; offline): each sample's regime given the whole run
     (forward-backward) -- more often right (docs/estimator.md), never what the node publishes. ``imm``: the
-    classifier per sample in order (``time`` in s and ``speed`` needed, else the regime is the phase).
+    classifier per sample in order (``time`` in s and ``speed`` needed, else the regime is the phase), with the
+    optional per-sample ``power`` (POWER_*; None or negative: not measured), ``track_force``, ``position`` and
+    ``track_force_integral`` as ``classify`` takes them (the pipeline's labels sample for sample).
     ``phase``: return (regimes, phases), the phases as :attr:`RegimeClassifier.phase` (with ``hmm`` and ``rule``
     the regimes themselves).
     """
@@ -484,7 +383,8 @@ def classify_regimes(
     if cfg.method == "imm":
         if smooth:
             raise ValueError("smooth: only with method hmm")
-        out, phases = _classify_each(e, a, cfg, speed, effort_known, opposing_force, speed_measured, time)
+        extra = (power, track_force, position, track_force_integral)
+        out, phases = _classify_each(e, a, cfg, speed, effort_known, opposing_force, speed_measured, time, extra)
         return (out, phases) if phase else out
     if cfg.method != "hmm":
         out = _classify_rule(e, a, cfg, speed, smooth)
@@ -505,19 +405,27 @@ def classify_regimes(
     return (out, out.copy()) if phase else out
 
 
-def _classify_each(e, a, cfg, speed, effort_known, opposing_force, speed_measured, time):
-    """``imm``: RegimeClassifier.classify per sample in order; (regimes, phases) of e's shape."""
+def _classify_each(e, a, cfg, speed, effort_known, opposing_force, speed_measured, time, extra=(None,) * 4):
+    """``imm``: RegimeClassifier.classify per sample in order; (regimes, phases) of e's shape. ``extra``: power
+    (POWER_*; None or a negative value: not measured), track_force, position, track_force_integral, or None each."""
     clf = RegimeClassifier(cfg)
 
     def flat(x, dtype):
         return [None] * e.size if x is None else np.broadcast_to(np.asarray(x, dtype=dtype), e.shape).ravel().tolist()
 
+    power, track_force, position, integral = extra
+    if power is not None:
+        given = np.broadcast_to(np.asarray(power, dtype=object), e.shape).ravel().tolist()
+        power = [None if p is None or p < 0 else int(p) for p in given]
     columns = (flat(speed, float), flat(effort_known, bool), flat(opposing_force, float))
-    columns += (flat(speed_measured, float), flat(time, float))
+    columns += (flat(speed_measured, float), flat(time, float), power or [None] * e.size)
+    columns += (flat(track_force, float), flat(position, float), flat(integral, float))
     out = np.empty(e.size, dtype=np.uint8)
     phases = np.empty(e.size, dtype=np.uint8)
-    for i, (ei, ai, v, known, w, z, t) in enumerate(zip(e.ravel().tolist(), a.ravel().tolist(), *columns)):
-        out[i] = clf.classify(ei, ai, v, effort_known=known, opposing_force=w, speed_measured=z, time=t)
+    rows = zip(e.ravel().tolist(), a.ravel().tolist(), *columns)
+    for i, (ei, ai, v, known, w, z, t, pw, g, s, gam) in enumerate(rows):
+        out[i] = clf.classify(ei, ai, v, effort_known=known, opposing_force=w, speed_measured=z, time=t, power=pw,
+                              track_force=g, position=s, track_force_integral=gam)  # fmt: skip
         phases[i] = clf.phase
     return out.reshape(e.shape), phases.reshape(e.shape)
 

@@ -43,6 +43,7 @@ def estimate_run(
         series.power_consumed.tolist(),
         series.power_regenerated.tolist(),
         series.tunnel_fraction.tolist(),
+        series.track_force_integral.tolist(),
     )
     process = est.process
     rows = [process(StepInput(*args)) for args in zip(*cols)]

@@ -155,12 +155,13 @@ class StepInput(NamedTuple):
     power_consumed: float  # W
     power_regenerated: float  # W
     tunnel_fraction: float = 0.0  # share of the train inside a tunnel, 0..1
+    track_force_integral: float = math.nan  # Gamma(s), J/kg (NaN: unknown)
 
     @classmethod
     def from_measurement(cls, m: Measurement) -> StepInput:
         return cls(int(m.stamp_ns), int(m.run_id), float(m.s), float(m.v), float(m.track_force), bool(m.s_measured),
                    float(m.s_variance), float(m.v_variance), bool(m.power_valid), float(m.power_consumed),
-                   float(m.power_regenerated), float(m.tunnel_fraction))  # fmt: skip
+                   float(m.power_regenerated), float(m.tunnel_fraction), float(m.track_force_integral))  # fmt: skip
 
 
 class StepResult(NamedTuple):
@@ -598,7 +599,8 @@ class ResistanceEstimator:
             return self._rejected(m.stamp_ns)
         m = self._repaired(m)
         if self._coast is not None and self._coast.push(
-            m.stamp_ns * 1e-9, m.v, m.track_force, m.tunnel_fraction, m.run_id, self._power_state(m)
+            m.stamp_ns * 1e-9, m.v, m.track_force, m.tunnel_fraction, m.run_id, self._power_state(m), m.s,
+            m.track_force_integral, m.s_variance, m.v_variance,
         ):
             self._take_coast_resistance()
         if self._h.x is None or m.run_id != self._run_id:

@@ -82,7 +82,7 @@ class Releaser:
         terms = self.terms
         return Measurement(  # positional, in field order: stamp_ns, s, v, track_force, dt, run_id, s_measured,
             t,  # s_variance, v_variance, cross_track, speed_limit, tunnel_fraction, power_valid, power_consumed,
-            s,  # power_regenerated (a keyword call costs more, per sample)
+            s,  # power_regenerated, track_force_integral (a keyword call costs more, per sample)
             v,
             terms.track_force(s),
             dt,
@@ -96,4 +96,5 @@ class Releaser:
             power is not None,
             power.consumed if power is not None else 0.0,
             power.regenerated if power is not None else 0.0,
+            terms.track_force_integral(s),
         )

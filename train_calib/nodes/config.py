@@ -91,7 +91,7 @@ PREDICTION_TOPIC = "/train_calib/prediction"
 NODE_PARAMS: dict[str, tuple[type[ParamSet], ...]] = {
     "gnss_speed_node": (NodeConfig, TrackTrainFiles, IngestConfig),
     "ukf_node": (NodeConfig, TrainFile, UKFConfig, SafeguardConfig),
-    "regime_node": (NodeConfig, RegimeConfig),
+    "regime_node": (NodeConfig, TrainFile, RegimeConfig),
     "feature_node": (NodeConfig, FeatureConfig),
     "window_calib_node": (NodeConfig, TrainFile, WindowConfig),
     "prediction_node": (NodeConfig, TrackTrainFiles, PredictionConfig),

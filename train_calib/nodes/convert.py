@@ -110,6 +110,7 @@ def _measurement_values(m: Measurement) -> tuple:
         bool(m.power_valid),
         float(m.power_consumed),
         float(m.power_regenerated),
+        float(m.track_force_integral),
     )
 
 
@@ -139,7 +140,15 @@ def measurement_from_msg(msg: Any) -> Measurement:
         bool(msg.power_valid),
         float(msg.power_consumed),
         float(msg.power_regenerated),
+        _track_force_integral(msg),
     )
+
+
+def _track_force_integral(msg: Any) -> float:
+    """TrackMeasurement.track_force_integral, NaN where unknown: absent (bags recorded before the field) or left at
+    the message's default 0.0 by a publisher that does not fill it (Gamma is 0 only at s = 0)."""
+    value = float(getattr(msg, "track_force_integral", math.nan))
+    return math.nan if value == 0.0 and float(msg.s) != 0.0 else value
 
 
 # -- ResistanceEstimate -----------------------------------------------------------------------------

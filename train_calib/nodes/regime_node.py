@@ -14,21 +14,37 @@ per-sample rule. A parameter change at run time takes effect at once by building
 the belief (the next sample is classified as the first of a departure). ``lag_samples: 1`` publishes each sample
 when the next estimate has come, its phase revised with it (:class:`train_calib.pipeline.RegimeStream`; the
 message keeps the sample's own stamp and frame_id).
+
+The imm also weighs each sample by the state of its traction power where measured (traction drawn, regenerated,
+neither: :func:`train_calib.estimation.regime_model.power_state`, with the train file's efficiency, mass and
+auxiliary power) and takes the mean track force over the step from the measurements' s and
+``track_force_integral``, both from the sample's /train_calib/measurement: an estimate is held until the
+measurement of its stamp has come (it comes first: ukf_node publishes the estimate after it), until a later one has
+come (dropped), or for at most ``MEASUREMENT_WAIT`` estimates (no measurement topic: the regimes from the speeds
+alone), as the offline pipeline pairs them (:class:`train_calib.pipeline.Pipeline`).
 """
 
 from __future__ import annotations
 
-from collections import Counter
+from collections import Counter, deque
 from typing import Any
 
-from train_calib_msgs.msg import DrivingRegime, ResistanceEstimate
+from train_calib_msgs.msg import DrivingRegime, ResistanceEstimate, TrackMeasurement
 
+from .. import paths
 from ..estimation import REGIME_NAMES, RegimeClassifier, RegimeConfig
+from ..estimation.effort import PowerEffort
+from ..estimation.regime_model import power_state
+from ..measurement import Measurement
 from ..params import ParamSet
 from ..pipeline import RegimeStream
+from ..train import load_train
 from .common import TrainCalibNode, run_node
-from .config import REGIME_TOPIC, RESISTANCE_TOPIC
-from .convert import regime_input_from_msg, regime_to_cdr
+from .config import MEASUREMENT_TOPIC, REGIME_TOPIC, RESISTANCE_TOPIC, TrainFile
+from .convert import measurement_from_msg, regime_input_from_msg, regime_to_cdr
+
+MEASUREMENT_WAIT = 30
+"""Estimates held at most waiting for their measurement's power state (none comes: the speeds alone)."""
 
 
 class RegimeNode(TrainCalibNode):
@@ -36,10 +52,22 @@ class RegimeNode(TrainCalibNode):
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(**kwargs)
+        try:
+            self.train = load_train(paths.train_file(self.config(TrainFile).train_file))
+        except BaseException:
+            self.destroy_node()
+            raise
+        self._power = PowerEffort(self.train)
         self.stream = RegimeStream(self.config(RegimeConfig))
         self._counts: Counter[int] = Counter()
         self._restarts = 0
+        self._held: deque[Any] = deque()  # estimates (RegimeInput) awaiting their measurement's power state
+        # (run_id, stamp_ns) -> (power state, measurement), ordered by run
+        self._powers: dict[tuple[int, int], tuple[int | None, Measurement]] = {}
+        self._newest_measurement: tuple[int, int] = (-1, -1)
+        self._with_power = 0
         self.output(DrivingRegime, REGIME_TOPIC)
+        self.chain_input(TrackMeasurement, MEASUREMENT_TOPIC, self._on_measurement)  # before: it comes first
         self.chain_input(ResistanceEstimate, RESISTANCE_TOPIC, self._on_estimate)
         cfg = self.classifier.config
         self.get_logger().info(
@@ -53,10 +81,34 @@ class RegimeNode(TrainCalibNode):
 
     @property
     def pending(self) -> int:
-        return self.stream.pending
+        return self.stream.pending + len(self._held)
+
+    def _on_measurement(self, msg: TrackMeasurement) -> None:
+        m = measurement_from_msg(msg)
+        key = (m.run_id, m.stamp_ns)
+        state = power_state(m, self._power)
+        self._powers[key] = (state, m)
+        self._with_power += state is not None
+        self._newest_measurement = max(self._newest_measurement, key)
+        self._release()
 
     def _on_estimate(self, msg: ResistanceEstimate) -> None:
-        self._publish(self.stream.push(regime_input_from_msg(msg)))
+        self._held.append(regime_input_from_msg(msg))
+        self._release()
+
+    def _release(self, everything: bool = False) -> None:
+        """Classify held estimates, oldest first, once their measurement's power state is known or cannot come."""
+        while self._held:
+            sample = self._held[0]
+            key = (sample.run_id, sample.stamp_ns)
+            coming = key not in self._powers and key > self._newest_measurement  # its measurement may still come
+            if coming and not everything and len(self._held) <= MEASUREMENT_WAIT:
+                return
+            self._held.popleft()
+            power, m = self._powers.pop(key, (None, None))
+            self._publish(self.stream.push(sample, power, m))
+            if len(self._powers) > 4 * MEASUREMENT_WAIT:  # measurements without an estimate (rejected) go
+                self._powers = {k: p for k, p in self._powers.items() if k > key}
 
     def _publish(self, triples: list) -> None:
         for sample, regime, phase in triples:
@@ -64,10 +116,12 @@ class RegimeNode(TrainCalibNode):
             self.publish(REGIME_TOPIC, regime_to_cdr(sample, regime, sample.frame_id, phase))
 
     def end_of_input(self) -> None:
+        self._release(everything=True)
         self._publish(self.stream.flush())
 
     def on_parameters_changed(self, changed: set[type[ParamSet]]) -> None:
         if RegimeConfig in changed:  # a new classifier: the HMM's belief restarts
+            self._release(everything=True)
             self._publish(self.stream.flush())
             self.stream = RegimeStream(self.config(RegimeConfig))
             self._restarts += 1
@@ -78,6 +132,7 @@ class RegimeNode(TrainCalibNode):
         if noise is not None:  # imm: the speed noise learned from the second differences
             out.append(("speed noise (imm), m/s", f"{noise:.3f}"))
         out += [(f"samples {name}", self._counts[i]) for i, name in enumerate(REGIME_NAMES)]
+        out.append(("measurements with traction power (imm)", self._with_power))
         out.append(("classifier restarts (parameter changes)", self._restarts))
         return out
 

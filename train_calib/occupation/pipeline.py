@@ -10,6 +10,7 @@ index), so results do not depend on the number of workers.
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import os
 import time
@@ -27,6 +28,7 @@ from .events import RunEvents
 from .length import LengthEstimate, estimate_length
 from .model import SimulatorModel
 from .objective import build_observations
+from .release_delay import ReleaseDelay, estimate_release_delay
 from .sensitivity import Identifiability, Sensitivity, identifiability, one_at_a_time
 from .unhindered import FilterConfig, check_run, fleet_reference, profile_reference
 
@@ -60,6 +62,8 @@ class FleetCalibration:
     elapsed_s: float = 0.0
     workers: int = 1
     settings: dict = field(default_factory=dict)
+    release_delay: ReleaseDelay | None = None  # with release_offset "auto": the estimate (release_delay.py)
+    release_offset_s: float = 0.0  # the release offset used (s): the fixed one or the estimate applied
 
     def calibrated(self, composition: str | None = None) -> list[CalibrationResult]:
         return [
@@ -140,16 +144,34 @@ def calibrate_fleet(
     workers: int = 1,
     candidates: Sequence[str] = CANDIDATES,
     progress: Callable[[str], None] | None = None,
+    auto_release_offset: bool = False,
 ) -> FleetCalibration:
-    """Lengths, compositions, filter, per-run calibration, distribution fits (see the module docstring)."""
+    """Lengths, compositions, filter, per-run calibration, distribution fits (see the module docstring).
+
+    The release offset (``calibration.release_offset_s``, s) is subtracted from every release time, for the
+    lengths and, with ``use_releases``, in the objective. ``auto_release_offset``: estimate it from the data
+    instead (:func:`release_delay.estimate_release_delay`; 0 when the data cannot separate it).
+    """
     t_start = time.perf_counter()
     cfg = calibration or CalibrationConfig()
     stops = list(stops_m) if stops_m is not None else default_stops(track)
     sections = track.sections
     lengths_table = types.lengths()
     ids = list(runs)
+    delay = None
+    if auto_release_offset:
+        delay = estimate_release_delay(runs, sections, stops, lengths_table)
+        cfg = dataclasses.replace(cfg, release_offset_s=delay.applied_s)
+        if progress:
+            progress(delay.reason)
+    offset = cfg.release_offset_s
     lengths = {
-        d: [estimate_length(runs[r], sections, lengths_table, d, speed=length_speed, strict=strict_length) for r in ids]
+        d: [
+            estimate_length(
+                runs[r], sections, lengths_table, d, speed=length_speed, strict=strict_length, release_offset_s=offset
+            )
+            for r in ids
+        ]
         for d in sorted({*LENGTH_DELTAS, float(delta_s)})
     }
     chosen = {e.run_id: e for e in lengths[float(delta_s)]}
@@ -222,6 +244,8 @@ def calibrate_fleet(
         fits={},
         bounds={c.name: dict(c.bounds) for c in types.compositions},
         workers=workers,
+        release_delay=delay,
+        release_offset_s=offset,
         settings={
             "delta_s": float(delta_s),
             "length_speed": length_speed,
@@ -231,6 +255,7 @@ def calibrate_fleet(
             "calibration": cfg.as_dict(),
             "filter": (filter_config or FilterConfig()).as_dict(),
             "reference": "fleet median" if reference is not None else "model with defaults",
+            "release_offset": "auto" if auto_release_offset else offset,
         },
     )
     for comp in types.names:

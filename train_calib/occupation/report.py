@@ -390,7 +390,10 @@ def summary(fleet: FleetCalibration, types: TrainTypes, truth: Mapping[str, Mapp
             for comp, per in fleet.fits.items()
         },
         "settings": fleet.settings,
+        "release_offset_s": fleet.release_offset_s,
     }
+    if fleet.release_delay is not None:
+        out["release_delay"] = fleet.release_delay.as_dict()
     if truth is not None:
         out["length_accuracy"] = length_accuracy(fleet, truth, types)
         out["truth_comparison"] = truth_comparison(fleet, truth)
@@ -416,6 +419,8 @@ def summary_text(data: dict) -> str:
         f"runs: {data['runs']}  calibrated: {c.get('calibrated', 0)}  rejected: {c.get('rejected', 0)}  "
         f"unassigned: {c.get('unassigned', 0)}  failed: {c.get('failed', 0)}",
     ]
+    if "release_delay" in data:
+        lines.append(data["release_delay"]["reason"])
     t = data["timing"]
     if t["per_calibration_s_median"] is not None:
         lines.append(

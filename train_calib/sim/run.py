@@ -202,4 +202,5 @@ class SimulatedRun:
             power_valid=power_valid,
             power_consumed=consumed,
             power_regenerated=regenerated,
+            track_force_integral=np.asarray(track.track_force_integral(s, train.length_m), dtype=float),
         )

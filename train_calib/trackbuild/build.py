@@ -12,6 +12,7 @@ from .altitude import gradients_from_altitude
 from .geometry import average_runs
 from .profile import align, mapped_table, read_profiles
 from .runs import read_run
+from .tunnels import find_tunnels
 
 
 @dataclass
@@ -41,6 +42,7 @@ def build_track(bags: list[Path], profiles: list[Path], options: BuildOptions) -
         geo = average_runs(runs, options.spacing_m)
     except ValueError as exc:
         raise ConfigError(str(bags[0]), "gnss", str(exc)) from None
+    runs = geo.runs  # those recorded the other way, played backwards
     found = geo.stops_m
     if found.size < 2:
         raise ConfigError(str(bags[0]), "stops", f"{found.size} stop(s) found in the runs, need a start and an end")
@@ -53,6 +55,9 @@ def build_track(bags: list[Path], profiles: list[Path], options: BuildOptions) -
         "the last stop (straight)",
         f"stations: {found.size} stops found in the runs (per run: {', '.join(map(str, geo.stops_per_run))})",
     ]
+    if geo.reversed_runs:
+        names = ", ".join(bags[k].name for k in geo.reversed_runs)
+        comments.append(f"direction: {names} recorded the other way than {bags[0].name}: reversed before averaging")
     prof = read_profiles(profiles) if profiles else None
     data: dict = {"name": options.name, "length_m": round(length, 2)}
     s_grid = np.arange(0.0, length, options.spacing_m)
@@ -93,10 +98,27 @@ def build_track(bags: list[Path], profiles: list[Path], options: BuildOptions) -
         comments.append(f"speed limit {limit:g} km/h: no profile (recorded maximum, rounded up)")
         data["speed_limits"] = [{"s_m": 0.0, "kmh": limit}]
         description += f"; {note}"
+    data["tunnels"], notes = _tunnels(runs, geo.fix_chainage, origin, length)
+    comments += notes
     names = [f"stop {k}" for k in range(found.size)]
     data["stations"] = [{"s_m": round(float(s - origin), 2), "name": n} for s, n in zip(found, names)]
     data["description"] = description
     return BuiltTrack(data, comments)
+
+
+def _tunnels(runs: list, chains: list[np.ndarray], origin: float, length: float) -> tuple[list[dict], list[str]]:
+    """The tunnels (GNSS outages consistent across the runs; trackbuild.tunnels) in track s, and comment lines."""
+    found = find_tunnels(runs, chains)
+    out, spans = [], []
+    for (a, b), seen, sigma in zip(found.tunnels, found.seen_by, found.edge_sigma_m):
+        a, b = max(a - origin, 0.0), min(b - origin, length)
+        if b - a < 1.0:
+            continue
+        out.append({"start_m": round(float(a), 1), "end_m": round(float(b), 1)})
+        spans.append(f"{a:.0f}-{b:.0f} m (edges +-{sigma:.0f} m, in {seen} of {len(runs)} runs)")
+    notes = [f"tunnels from GNSS outages while moving: {'; '.join(spans) if spans else 'none'}"]
+    notes += [f"not a tunnel: {d}" for d in found.dropped]
+    return out, notes
 
 
 def _limit_from_runs(runs: list) -> float:

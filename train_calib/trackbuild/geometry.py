@@ -2,7 +2,9 @@
 
 1. A reference from the first run: its moving fixes, median-filtered (5 fixes) against multipath, thinned to
    >= 20 m apart.
-2. Every run's fixes projected on the reference (chainage c, m); a run driven the other way is reversed.
+2. Every run's fixes projected on the reference (chainage c, m). A run whose chainage falls over time (a
+   least-squares slope) was driven the other way: it is played backwards (``RunData.reversed_in_time``), so
+   that every run runs the first one's way for the averaging, the stops and the tunnels.
 3. East and north as functions of c by a local linear fit over a window of +-``window`` m (Gaussian weights),
    evaluated every ``spacing`` m; twice, the second time on the first result.
 4. Chainage of the result = its chord lengths.
@@ -125,17 +127,25 @@ class AveragedGeometry:
 
     polyline: Polyline
     frame: LocalFrame
-    fix_chainage: list[np.ndarray]
+    fix_chainage: list[np.ndarray]  # per run (as in ``runs``), m
     stops_m: np.ndarray
     stops_per_run: list[int]
     cross_track_rms_m: float
     window_m: float
+    runs: list[RunData]  # the runs, those driven the other way played backwards
+    reversed_runs: list[int]  # indices of those
 
 
 def average_runs(runs: list[RunData], spacing_m: float = 25.0) -> AveragedGeometry:
     """One polyline from every run's fixes (see the module doc)."""
     frame = LocalFrame(float(np.median(runs[0].lat)), float(np.median(runs[0].lon)))
     ref = reference(runs[0], frame)
+    runs, flipped = list(runs), []
+    for k in range(1, len(runs)):  # a run driven the other way: its fixes' chainage falls over time
+        c, _ = ref.project(runs[k].enu(frame))
+        if np.polyfit(runs[k].fix_t_ns.astype(float) * 1e-9, c, 1)[0] < 0:
+            runs[k] = runs[k].reversed_in_time()
+            flipped.append(k)
     pts = [r.enu(frame) for r in runs]
     spacing = np.median(np.concatenate([np.hypot(*np.diff(p, axis=0).T) for p in pts]))
     window = float(max(60.0, 2.0 * spacing / np.sqrt(len(runs))))
@@ -143,16 +153,13 @@ def average_runs(runs: list[RunData], spacing_m: float = 25.0) -> AveragedGeomet
     keep = np.ones(sum(len(p) for p in pts), dtype=bool)
     for _ in range(3):
         chain, cross = zip(*(poly.project(p) for p in pts))
-        for k, c in enumerate(chain):  # a run driven the other way: its fixes' chainage falls over time
-            if k and np.polyfit(np.arange(c.size), c, 1)[0] < 0:
-                raise ValueError(f"{runs[k].source}: runs the other way than {runs[0].source}")
         offset = np.abs(np.concatenate(cross))
         keep = offset <= max(10.0, 4.0 * 1.4826 * float(np.median(offset)))  # multipath outliers out
         poly = smooth(np.concatenate(chain)[keep], np.concatenate(pts)[keep], window, spacing_m)
     chain, cross = zip(*(poly.project(p) for p in pts))
     rms = float(np.sqrt(np.median(np.concatenate(cross) ** 2)))
     stops, counts = find_stops(runs, list(chain))
-    return AveragedGeometry(poly, frame, list(chain), stops, counts, rms, window)
+    return AveragedGeometry(poly, frame, list(chain), stops, counts, rms, window, runs, flipped)
 
 
 def find_stops(runs: list[RunData], chain: list[np.ndarray], merge_m: float = 150.0) -> tuple[np.ndarray, list[int]]:

@@ -29,6 +29,21 @@ class RunData:
         e, n = frame.to_enu(self.lat, self.lon)
         return np.stack([np.asarray(e, dtype=float), np.asarray(n, dtype=float)], axis=1)
 
+    def reversed_in_time(self) -> RunData:
+        """The run played backwards (t -> t_first + t_last - t): the same places passed the other way at the same
+        speeds, stops and outages where they were. How a run recorded in the opposite direction is averaged."""
+        t0 = int(min(self.fix_t_ns[0], self.speed_t_ns[0]))
+        t1 = int(max(self.fix_t_ns[-1], self.speed_t_ns[-1]))
+        return RunData(
+            source=self.source,
+            fix_t_ns=(t0 + t1 - self.fix_t_ns)[::-1].copy(),
+            lat=self.lat[::-1].copy(),
+            lon=self.lon[::-1].copy(),
+            alt=self.alt[::-1].copy(),
+            speed_t_ns=(t0 + t1 - self.speed_t_ns)[::-1].copy(),
+            speed_ms=self.speed_ms[::-1].copy(),
+        )
+
     def speed_at(self, t_ns: np.ndarray) -> np.ndarray:
         """Speed interpolated to the given stamps, m/s."""
         return np.interp(t_ns.astype(float), self.speed_t_ns.astype(float), self.speed_ms)
