@@ -128,6 +128,8 @@ def _best_of(f, repeat: int) -> tuple[float, object]:
 def _stage_times(job: dict, repeat: int) -> dict[str, float]:
     """CPU ms of each stage of one bag, alone on the previous stage's output."""
     from train_calib import pipeline as P
+    from train_calib.estimation.effort import PowerEffort
+    from train_calib.estimation.regime_model import power_state
     from train_calib.fleet.row import _cached
 
     track, train, bag = _cached("track", job["track_path"]), _cached("train", job["train_path"]), job["bag_path"]
@@ -149,11 +151,11 @@ def _stage_times(job: dict, repeat: int) -> dict[str, float]:
 
     ms["ukf"], (pairs, estimator) = _best_of(ukf, repeat)
 
-    def regimes() -> list:
-        stream, out = P.RegimeStream(), []
-        for _, e in pairs:
+    def regimes() -> list:  # as Pipeline.add_measurement classifies: with the power's state and the measurement
+        stream, power, out = P.RegimeStream(), PowerEffort(train), []
+        for m, e in pairs:
             if e is not None:
-                out += stream.push(e)
+                out += stream.push(e, power_state(m, power), m)
         return out + stream.flush()
 
     ms["regimes"], triples = _best_of(regimes, repeat)
