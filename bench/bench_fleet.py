@@ -38,7 +38,7 @@ from pathlib import Path
 import pandas as pd
 
 from train_calib.fleet.manifest import read_manifest
-from train_calib.fleet.row import TIMING_COLUMNS, process_run
+from train_calib.fleet.row import TIMING_COLUMNS, process_run, tune_gc
 from train_calib.fleet.runner import Cluster, run_fleet
 from train_calib.fleet.simulate import FleetSpec, simulate_fleet
 from train_calib.pipeline import bag_messages
@@ -74,6 +74,7 @@ def per_core(src: Path, repeat: int) -> dict[str, float]:
     jobs = [r.columns() | {"bag_path": r.bag_path, "track_path": r.track_path, "train_path": r.train_path}
             for r in rows]  # fmt: skip
     process_run(jobs[0])  # warm-up: imports, track and train caches
+    tune_gc()  # as in a fleet worker after its first run
     times: dict[int, list[float]] = {k: [] for k in range(len(jobs))}
     cpu: dict[int, list[float]] = {k: [] for k in range(len(jobs))}
     decode: dict[int, list[float]] = {k: [] for k in range(len(jobs))}

@@ -39,3 +39,24 @@ def test_row_without_the_window_calibration_equals_the_full_chain(monkeypatch) -
     assert windows and windows[0] > 1000
     assert row.keys() == full.keys()
     assert all(_same(row[k], full[k]) for k in row), [k for k in row if not _same(row[k], full[k])]
+
+
+def test_tune_gc_once_freezes_and_raises_the_threshold() -> None:
+    """What a fleet worker does after its first run (process_run in a Dask worker); the test process is restored."""
+    import gc
+
+    from train_calib.fleet import row
+
+    saved, tuned = gc.get_threshold(), row._gc_tuned
+    try:
+        row._gc_tuned = False
+        row.tune_gc()
+        assert gc.get_threshold() == (row.GC_THRESHOLD0, *saved[1:])
+        assert gc.get_freeze_count() > 1000
+        gc.set_threshold(*saved)
+        row.tune_gc()  # once a process: no second freeze or threshold change
+        assert gc.get_threshold() == saved
+    finally:
+        gc.unfreeze()
+        gc.set_threshold(*saved)
+        row._gc_tuned = tuned

@@ -11,6 +11,7 @@ and train's file contents; ``--resume`` reuses a row whose key it finds, whateve
 
 from __future__ import annotations
 
+import gc
 import hashlib
 import json
 import math
@@ -112,6 +113,35 @@ def one_line(exc: BaseException) -> str:
     return text[:400]
 
 
+GC_THRESHOLD0 = 20_000
+"""The collector's youngest-generation threshold in a fleet worker (Python's default 700): a 1 Hz run allocates
+fewer net container objects (reference counting frees the per-sample ones), so no collection falls inside a run."""
+_gc_tuned = False
+
+
+def tune_gc() -> None:
+    """For a process that does many runs (a fleet worker), once: what is alive now (the modules, the track and
+    train caches, Dask's worker) is frozen out of the collector's reach (``gc.freeze``: a full collection no longer
+    walks it: 40 ms each in a bench process, more in a Dask worker) and the youngest generation is collected every
+    GC_THRESHOLD0 net allocations. 1 Hz run: the collector's 5-6 ms per run -> 0 (gc callbacks)."""
+    global _gc_tuned
+    if not _gc_tuned:
+        _gc_tuned = True
+        gc.collect()
+        gc.freeze()
+        gc.set_threshold(GC_THRESHOLD0, *gc.get_threshold()[1:])
+
+
+def _in_dask_worker() -> bool:
+    try:
+        from distributed import get_worker
+
+        get_worker()
+        return True
+    except Exception:
+        return False
+
+
 def process_run(job: dict[str, Any]) -> dict[str, Any]:
     """A manifest row (``ManifestRow.columns()`` plus ``bag_path``, ``track_path``, ``train_path`` and, from
     ``--params-file``, ``configs`` (Pipeline keyword -> ParamSet) and ``params_sha256``) -> a runs.parquet row
@@ -127,6 +157,8 @@ def process_run(job: dict[str, Any]) -> dict[str, Any]:
         row["status"] = "error"
         row["error"] = one_line(exc)
     row["seconds"] = time.perf_counter() - start
+    if not _gc_tuned and _in_dask_worker():
+        tune_gc()  # after the first run: its imports and caches are then among what is frozen
     return row
 
 
