@@ -137,9 +137,13 @@ class RegimeStream:
 
 
 class FeatureStream:
-    """Features to publish per regime sample: on a regime change, and ``run_complete`` at the end of a run."""
+    """Features to publish per regime sample: on a regime change, and ``run_complete`` at the end of a run.
 
-    def __init__(self, config: FeatureConfig | None = None) -> None:
+    ``on_change`` False: only the ``run_complete`` ones (a fleet row reads nothing else; a snapshot changes no state
+    of the accumulator, so the closing features are the same)."""
+
+    def __init__(self, config: FeatureConfig | None = None, on_change: bool = True) -> None:
+        self.on_change = on_change
         self.config = config if config is not None else FeatureConfig()
         self.accumulator = FeatureAccumulator(self.config)
         self.run_id: int | None = None
@@ -160,7 +164,7 @@ class FeatureStream:
                 self.config, self._next_config = self._next_config, None
                 self.accumulator = FeatureAccumulator(self.config)
             self.run_id, self.complete = int(sample.run_id), False
-        if self.accumulator.update(sample, int(regime)):
+        if self.accumulator.update(sample, int(regime)) and self.on_change:
             out.append(self.accumulator.snapshot())
         return out
 
@@ -202,7 +206,8 @@ class Pipeline:
     ``window``: the sliding-window calibration as window_calib_node runs it -- True (the default: WindowConfig()),
     a WindowConfig, or False (the graph without window_calib_node). It yields results only for measurements that
     carry traction power, so with the default the pipeline equals the replay's graph, which starts
-    window_calib_node when the bag has /train/traction_power.
+    window_calib_node when the bag has /train/traction_power. ``feature_changes`` False: features only at the end
+    of each run (``FeatureStream.on_change``), as a fleet row needs them.
     """
 
     def __init__(
@@ -217,12 +222,13 @@ class Pipeline:
         initial: Davis | None = None,
         safeguards: SafeguardConfig | None = None,
         window: WindowConfig | bool = True,
+        feature_changes: bool = True,
     ) -> None:
         self.ingest = Ingest(track, train, ingest) if track is not None else None
         self.estimator = ResistanceEstimator(train, ukf, initial, safeguards)
         self.regimes = RegimeStream(regime)
         self._power = PowerEffort(train)  # the traction power's state for the regimes
-        self.features = FeatureStream(features)
+        self.features = FeatureStream(features, feature_changes)
         self.window: WindowCalibrator | None = None
         if window is not False:
             self.window = WindowCalibrator(train, WindowConfig() if window is True else window)

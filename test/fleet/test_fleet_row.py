@@ -1,10 +1,12 @@
 """The fleet row's own choices leave it equal to the full chain's: the sliding-window calibration (not run for a
-row) feeds nothing the row reads."""
+row) feeds nothing the row reads, and the features snapshot at each regime change (not made for a row) change
+nothing of the closing ones."""
 
 from __future__ import annotations
 
 import math
 
+import pytest
 from repo_paths import REPO
 
 from train_calib import pipeline
@@ -20,23 +22,29 @@ def _same(a: object, b: object) -> bool:
     return a == b
 
 
-def test_row_without_the_window_calibration_equals_the_full_chain(monkeypatch) -> None:
-    """A 1 Hz bag with traction power (the window calibration fits every sample there)."""
-    bag = str(REPO / "bags" / "tunnel_line_37km_1s_00")
-    track, train = str(track_file("tunnel_line_37km")), str(train_file("icrm"))
+@pytest.mark.parametrize(("name", "line", "unit"), [("tunnel_line_37km_1s_00", "tunnel_line_37km", "icrm"),
+                                                    ("intercity_32km_10s_01", "intercity_32km", "virm6")])  # fmt: skip
+def test_row_equals_the_full_chain(monkeypatch, name: str, line: str, unit: str) -> None:
+    """A 1 Hz bag with traction power (the window calibration fits every sample there) and a 10 s bag."""
+    bag = str(REPO / "bags" / name)
+    track, train = str(track_file(line)), str(train_file(unit))
     row = run_result(bag, track, train)
     windows: list[int] = []
+    snapshots: list[int] = []
     run_bag = pipeline.run_bag
 
     def full_chain(*args, **configs):
-        configs.pop("window")
+        assert configs.pop("window") is False and configs.pop("feature_changes") is False
         out = run_bag(*args, **configs)
         windows.append(len(out.windows))
+        snapshots.append(len(out.features))
         return out
 
     monkeypatch.setattr(pipeline, "run_bag", full_chain)
     full = run_result(bag, track, train)
-    assert windows and windows[0] > 1000
+    assert snapshots and snapshots[0] > 2 * row["runs_in_bag"]  # more than the closing ones
+    if "1s" in name:
+        assert windows and windows[0] > 1000
     assert row.keys() == full.keys()
     assert all(_same(row[k], full[k]) for k in row), [k for k in row if not _same(row[k], full[k])]
 
