@@ -197,7 +197,7 @@ def coast_equations(
     g = np.array([m.track_force for m in ms])
     tun = np.array([m.tunnel_fraction for m in ms])
     rid = np.array([m.run_id for m in ms])
-    s = np.array([m.s for m in ms])
+    s = np.array([getattr(m, "s", math.nan) for m in ms])
     gamma = np.array([getattr(m, "track_force_integral", math.nan) for m in ms])
     energy = t.size > 2 and float(np.median(np.diff(t))) >= ENERGY_PERIOD_S and bool(np.all(np.isfinite(gamma)))
     e = 0.5 * v * v + gamma

@@ -35,13 +35,12 @@ from .. import paths
 from ..estimation import REGIME_NAMES, RegimeClassifier, RegimeConfig
 from ..estimation.effort import PowerEffort
 from ..estimation.regime_model import power_state
-from ..measurement import Measurement
 from ..params import ParamSet
 from ..pipeline import RegimeStream
 from ..train import load_train
 from .common import TrainCalibNode, run_node
 from .config import MEASUREMENT_TOPIC, REGIME_TOPIC, RESISTANCE_TOPIC, TrainFile
-from .convert import measurement_from_msg, regime_input_from_msg, regime_to_cdr
+from .convert import regime_input_from_msg, regime_to_cdr, stamp_to_ns
 
 MEASUREMENT_WAIT = 30
 """Estimates held at most waiting for their measurement's power state (none comes: the speeds alone)."""
@@ -62,8 +61,8 @@ class RegimeNode(TrainCalibNode):
         self._counts: Counter[int] = Counter()
         self._restarts = 0
         self._held: deque[Any] = deque()  # estimates (RegimeInput) awaiting their measurement's power state
-        # (run_id, stamp_ns) -> (power state, measurement), ordered by run
-        self._powers: dict[tuple[int, int], tuple[int | None, Measurement]] = {}
+        # (run_id, stamp_ns) -> (power state, TrackMeasurement), ordered by run
+        self._powers: dict[tuple[int, int], tuple[int | None, Any]] = {}
         self._newest_measurement: tuple[int, int] = (-1, -1)
         self._with_power = 0
         self.output(DrivingRegime, REGIME_TOPIC)
@@ -84,13 +83,16 @@ class RegimeNode(TrainCalibNode):
         return self.stream.pending + len(self._held)
 
     def _on_measurement(self, msg: TrackMeasurement) -> None:
-        m = measurement_from_msg(msg)
-        key = (m.run_id, m.stamp_ns)
-        state = power_state(m, self._power)
-        self._powers[key] = (state, m)
+        # the message (a read-only view) itself: power_state and the classifier read power_*, s and
+        # track_force_integral from it (absent in bags recorded before the field: getattr, NaN)
+        key = (int(msg.run_id), stamp_to_ns(msg.header.stamp))
+        state = power_state(msg, self._power)
+        self._powers[key] = (state, msg)
         self._with_power += state is not None
-        self._newest_measurement = max(self._newest_measurement, key)
-        self._release()
+        if key > self._newest_measurement:
+            self._newest_measurement = key
+        if self._held:
+            self._release()
 
     def _on_estimate(self, msg: ResistanceEstimate) -> None:
         self._held.append(regime_input_from_msg(msg))
