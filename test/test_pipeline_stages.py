@@ -5,6 +5,7 @@ nodes' order): every output, bit for bit, also with measurements the UKF rejects
 from __future__ import annotations
 
 import dataclasses
+import importlib.util
 import sys
 
 from repo_paths import REPO
@@ -15,14 +16,25 @@ from train_calib.pipeline import Pipeline, run_bag
 from train_calib.track import load_track
 from train_calib.train import load_train
 
-sys.path.insert(0, str(REPO / "bench" / "refactor"))
-from output_digest import digest
+
+def _digest_module():
+    """bench/refactor/output_digest.py (the refactors' exact encoding of every output), loaded by path."""
+    if "refactor_output_digest" not in sys.modules:
+        path = REPO / "bench" / "refactor" / "output_digest.py"
+        spec = importlib.util.spec_from_file_location("refactor_output_digest", path)
+        assert spec is not None and spec.loader is not None
+        module = importlib.util.module_from_spec(spec)
+        sys.modules["refactor_output_digest"] = module
+        spec.loader.exec_module(module)
+    return sys.modules["refactor_output_digest"]
+
 
 BAG = REPO / "bags" / "tunnel_line_37km_1s_00"  # 1 Hz with traction power: the window calibration fits
 
 
 def _outputs(out) -> dict[str, str]:
     names = ("measurements", "estimates", "regimes", "features", "windows", "best", "ingest_stats")
+    digest = _digest_module().digest
     return {name: digest(getattr(out, name)) for name in names}
 
 
