@@ -249,3 +249,15 @@ def test_a_clock_reset_starts_a_new_time_base_and_keeps_what_was_learnt(train):
         if args[0] < arr.t[-1] and args[4] == 0:
             first = len(online.stretches)
     assert first >= 1 and len(online.stretches) > first
+
+
+def test_a_sample_without_speed_is_left_out_as_on_board(train):
+    """A NaN speed (run_measurements takes any series) is no measurement: the whole-run fit equals the fit
+    without that sample (it raised an IndexError in the slope windows), as CoastRegression.push skips it."""
+    _, series = run_with_truth(train, (0.8, 0.8, 0.8), 1.0)
+    arr = RunArrays.from_series(series)
+    keep = np.ones(arr.t.size, dtype=bool)
+    keep[100] = False
+    clean = arr.part(keep)
+    arr.v[100] = np.nan
+    np.testing.assert_array_equal(fit_coasts(arr, train).r, fit_coasts(clean, train).r)

@@ -376,6 +376,9 @@ def fit_coasts(
     cfg = settings if settings is not None else CoastSettings()
     r_prior = np.asarray((prior if prior is not None else train.davis).as_tuple(), dtype=float)
     P0 = prior_covariance(r_prior, cfg.prior_scale_std, cfg.prior_coefficient_std)
+    finite = np.isfinite(arr.t) & np.isfinite(arr.v) & np.isfinite(arr.g)
+    if not np.all(finite):  # as CoastRegression.push: a sample without t, v or g is no measurement
+        arr = arr.part(finite)
     if arr.t.size < 3:
         return CoastFit(r_prior, P0)
     sv = speed_noise(arr.v)

@@ -133,8 +133,8 @@ class RunArrays:
             series.track_force_integral, series.s_variance, series.v_variance,
         )  # fmt: skip
 
-    def part(self, sl: slice) -> RunArrays:
-        """The samples of a slice (every column)."""
+    def part(self, sl: slice | np.ndarray) -> RunArrays:
+        """The samples of a slice or a boolean mask (every column)."""
         cut = {k: (None if x is None else x[sl]) for k, x in vars(self).items()}
         return RunArrays(**cut)
 
