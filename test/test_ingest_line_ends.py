@@ -45,3 +45,25 @@ def test_reversing_in_a_gnss_gap_dead_reckons_back_to_the_line_start_and_no_furt
     assert seconds == [*range(0, 33), *range(127, 141)]  # the turn back seen from 33 s
     assert [m.run_id for m in out] == [0] * 33 + [1] * 14
     assert all(abs(m.s - _shunt(k)) < 1e-3 for m, k in zip(out, seconds))  # every one paired with its fix
+
+
+def _reversing_after_a_speed_gap(track, train, fix_first: bool) -> int:
+    """Forward at 10 m/s for 20 s, the speeds silent for 40 s (the odometer restarts) while the fixes go on, then
+    backwards at 5 m/s for 40 s; a fix and a speed sample every second, in the given order at each stamp."""
+    ingest = Ingest(track, train)
+    for t in range(100):
+        s = 1000.0 + 10.0 * t if t < 20 else 1200.0 if t < 60 else 1200.0 - 5.0 * (t - 60)
+        pair = [("fix", fix_at(track, float(t), s))]
+        if not 20 <= t < 60:
+            pair.append(("speed", SpeedSample(T0 + t * NS, 10.0 if t < 20 else 5.0)))
+        for kind, event in pair if fix_first else pair[::-1]:
+            ingest.add_fix(event) if kind == "fix" else ingest.add_speed(event)
+    ingest.flush()
+    return ingest.stats.dropped[SPEED].get("reversing", 0)
+
+
+def test_the_direction_check_after_a_speed_gap_does_not_depend_on_the_arrival_order(track, train):
+    """The fix of the restart's stamp counts whether it comes before or after the speed sample: 30 speed samples
+    dropped as reversing either way (the queue used to be cleared at the restart: 29 with the fix first,
+    bench/mutation/restart_order.py, mutation ingest-9)."""
+    assert _reversing_after_a_speed_gap(track, train, True) == _reversing_after_a_speed_gap(track, train, False) == 30

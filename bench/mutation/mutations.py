@@ -78,13 +78,11 @@ MUTATIONS: tuple[Mutation, ...] = (
              "",
              "dead reckoning backwards while reversing is not clamped at the line's ends", INGEST_TESTS),
     Mutation("ingest-9", _INGEST + "odometer_checks.py",
-             "            self.queue.clear()\n\n    def reacquired",
-             "\n    def reacquired",
-             "the fixes queued for the direction and delay checks are kept when the odometer restarts after a gap",
-             INGEST_TESTS,
-             survives="no bug: a queued fix older than the restart finds no odometer distance and is skipped "
-             "anyway; the clear only throws away a fix stamped at or after the restart sample that arrived before "
-             "it (the mutant is order-independent, the code is not: docs/mutation.md)"),
+             "            self.delay.reset()\n            # the queue is kept",
+             "            self.delay.reset()\n            self.queue.clear()\n            # the queue is kept",
+             "the fixes queued for the direction check are dropped when the odometer restarts after a gap (the "
+             "reversing count then depends on whether a fix or the speed sample of the restart's stamp came first)",
+             INGEST_TESTS),
     # -- features ---------------------------------------------------------------------------------------------------
     Mutation("features-1", _FEATURES + "rules.py",
              "    return t - first_t >= 0.98 * window - 1e-6",
