@@ -5,10 +5,8 @@ nodes' order): every output, bit for bit, also with measurements the UKF rejects
 from __future__ import annotations
 
 import dataclasses
-import importlib.util
-import sys
 
-from repo_paths import REPO
+from repo_paths import REPO, bench_module
 
 from train_calib.cdr_inputs import read_input_events
 from train_calib.paths import track_file, train_file
@@ -19,14 +17,7 @@ from train_calib.train import load_train
 
 def _digest_module():
     """bench/refactor/output_digest.py (the refactors' exact encoding of every output), loaded by path."""
-    if "refactor_output_digest" not in sys.modules:
-        path = REPO / "bench" / "refactor" / "output_digest.py"
-        spec = importlib.util.spec_from_file_location("refactor_output_digest", path)
-        assert spec is not None and spec.loader is not None
-        module = importlib.util.module_from_spec(spec)
-        sys.modules["refactor_output_digest"] = module
-        spec.loader.exec_module(module)
-    return sys.modules["refactor_output_digest"]
+    return bench_module("refactor/output_digest.py", "refactor_output_digest")
 
 
 BAG = REPO / "bags" / "tunnel_line_37km_1s_00"  # 1 Hz with traction power: the window calibration fits

@@ -629,24 +629,17 @@ def test_imm_regimes_on_validation_runs_against_per_sample_truth(tmp_path):
     """Three held-out runs of the validation family (bench/validation, generated here), through the offline pipeline
     at the defaults: the published regime against the truth per sample (the scorer's regime accuracy), above the
     phase (the former default), and cycles are not cruising."""
-    import importlib.util
     import json
-    import sys
     from dataclasses import replace
     from pathlib import Path
     from types import SimpleNamespace
 
+    from repo_paths import validation_module
+
     from train_calib.estimation import UKFConfig
     from train_calib.pipeline import run_bag
 
-    bench = Path(__file__).resolve().parents[2] / "bench" / "validation"
-    mods = {}
-    for name in ("family", "score"):
-        spec = importlib.util.spec_from_file_location(f"validation_{name}", bench / f"{name}.py")
-        mods[name] = module = importlib.util.module_from_spec(spec)
-        sys.modules[spec.name] = module
-        spec.loader.exec_module(module)
-    family, score = mods["family"], mods["score"]
+    family, score = validation_module("family"), validation_module("score")
     specs = {s.name: s for s in family.all_specs()}
     for name, (bound, phase_measured) in VALIDATION_RUNS.items():
         spec = specs[name]

@@ -4,26 +4,11 @@ and the family's own runs are what they were."""
 
 from __future__ import annotations
 
-import importlib.util
-import sys
-
 import numpy as np
 import pytest
-from repo_paths import REPO
+from repo_paths import bench_module
 
-
-def _siblings():
-    key = "prediction_siblings"
-    if key not in sys.modules:
-        spec = importlib.util.spec_from_file_location(key, REPO / "bench" / "prediction" / "siblings.py")
-        assert spec is not None and spec.loader is not None
-        module = importlib.util.module_from_spec(spec)
-        sys.modules[key] = module
-        spec.loader.exec_module(module)
-    return sys.modules[key]
-
-
-S = _siblings()
+S = bench_module("prediction/siblings.py", "prediction_siblings")
 HOLD_10S = next(f for f in S.family.FAMILIES if f.name == "hold_10s")
 
 
