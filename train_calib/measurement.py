@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, fields
+from typing import Any
 
 import numpy as np
 
@@ -32,6 +34,14 @@ class Measurement:
     def t(self) -> float:
         """Measurement time in s."""
         return self.stamp_ns * 1e-9
+
+
+def track_force_integral_of(msg: Any) -> float:
+    """TrackMeasurement.track_force_integral of a message (rclpy, rosbags or a view), NaN where unknown: absent (bags
+    recorded before the field) or left at the message's default 0.0 by a publisher that does not fill it (Gamma is 0
+    only at s = 0)."""
+    value = float(getattr(msg, "track_force_integral", math.nan))
+    return math.nan if value == 0.0 and float(msg.s) != 0.0 else value
 
 
 @dataclass

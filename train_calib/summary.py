@@ -22,6 +22,7 @@ import numpy as np
 from .bagio import iter_bag, stamp_ns
 from .estimation.coast_regression import CoastSettings, RunArrays, fit_coasts, resistance_and_sigma
 from .estimation.records import EFFORT_COMPUTED, EFFORT_SOURCES
+from .measurement import track_force_integral_of
 from .physics import KMH, davis
 from .regime_codes import REGIME_NAMES, regime_name
 from .train import TrainSpec
@@ -87,7 +88,7 @@ def read_outputs(bag: str | Path) -> Outputs:
             meas.append(
                 (stamp_ns(msg.header), msg.s, msg.v, msg.run_id, msg.speed_limit, msg.s_measured, msg.track_force,
                  msg.tunnel_fraction, msg.power_valid, msg.power_consumed, msg.power_regenerated,
-                 getattr(msg, "track_force_integral", math.nan), msg.s_variance, msg.v_variance)
+                 track_force_integral_of(msg), msg.s_variance, msg.v_variance)
             )  # fmt: skip
         elif m.topic == RESISTANCE:
             cov = np.asarray(msg.covariance, dtype=float).reshape(5, 5)

@@ -256,3 +256,17 @@ def test_without_gamma_the_time_form_runs_unchanged(track, train):
     no_gamma = RunArrays(arr.t, arr.v, arr.g, arr.tunnel, arr.run)
     np.testing.assert_array_equal(fit_coasts(arr, train).r, fit_coasts(no_gamma, train).r)
     assert not uses_energy_form(arr, CoastSettings(), 1.0, 1.0)
+
+
+def test_the_causal_grade_error_is_the_offline_one(track, train):
+    """CoastRegression keeps step_grade_error's terms per step as they arrive (plain floats); over one run its
+    median is the offline function's over the same samples, float for float."""
+    from train_calib.estimation.coast_energy import step_grade_error
+
+    arr, _ = cruise_coast_brake(track, train, truth_of(train, 0.8), np.random.default_rng(4))
+    reg = CoastRegression(train, CoastSettings())
+    for i in range(arr.t.size):
+        reg.push(arr.t[i], arr.v[i], arr.g[i], arr.tunnel[i], 0, s=arr.s[i], gamma=arr.gamma[i], s_var=16.0,
+                 v_var=0.16**2)  # fmt: skip
+    offline = step_grade_error(arr, np.array(train.davis.as_tuple()), CoastSettings().coast_min_speed)
+    assert offline > 0.0 and reg.grade_error() == offline

@@ -31,6 +31,7 @@ pruning and growth 6.0 % median error.
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
@@ -118,18 +119,34 @@ def _coast_fit(E: np.ndarray, R: np.ndarray, w: np.ndarray) -> tuple[float, floa
     return k, e0, E - (e0 - k * R)
 
 
-def energy_candidates(
-    arr: RunArrays, settings: CoastSettings, prior: np.ndarray, sigma_v: float, period: float
-) -> np.ndarray:
+class EnergyTerms(NamedTuple):
+    """Per sample: E = v^2/2 + Gamma (J/kg), R = the train file's r(v) integrated over s (J/kg), w = 1 / var(E);
+    and the speed noise sigma_v (m/s) they were weighted with."""
+
+    E: np.ndarray
+    R: np.ndarray
+    w: np.ndarray
+    sigma_v: float
+
+
+def energy_terms(arr: RunArrays, prior: np.ndarray, sigma_v: float) -> EnergyTerms:
+    """E, R and the weights of every sample (once for a detection: the window test and the refinement share them)."""
+    return EnergyTerms(
+        0.5 * arr.v * arr.v + arr.gamma,
+        _trapezoid_in_s(davis_value(prior, arr.v), arr.s),
+        1.0 / np.maximum(energy_noise_var(arr, sigma_v), 1e-12),
+        sigma_v,
+    )
+
+
+def energy_candidates(arr: RunArrays, terms: EnergyTerms, settings: CoastSettings, period: float) -> np.ndarray:
     """Per sample: inside a window that passes the coasting test (module docstring, 1-3)."""
     m = int(settings.coast_energy_window)
     n = arr.t.size
     flag = np.zeros(n, dtype=bool)
     if n < m:
         return flag
-    E = 0.5 * arr.v * arr.v + arr.gamma
-    R = _trapezoid_in_s(davis_value(prior, arr.v), arr.s)
-    w = 1.0 / np.maximum(energy_noise_var(arr, sigma_v), 1e-12)
+    E, R, w, _ = terms
     step_ok = np.zeros(n, dtype=bool)  # step ok[i]: sample i-1 -> i usable inside one window
     gap = min(settings.max_gap, 2.5 * period)
     dt = np.diff(arr.t)
@@ -147,7 +164,7 @@ def energy_candidates(
         k = -(ww * de * dr).sum(axis=1) / srr
     chi_coast = (ww * (de + k[:, None] * dr) ** 2).sum(axis=1)
     dv = vw - vw.mean(axis=1)[:, None]
-    chi_hold = (dv * dv).sum(axis=1) / (sigma_v * sigma_v)
+    chi_hold = (dv * dv).sum(axis=1) / (terms.sigma_v * terms.sigma_v)
     accept = (
         valid
         & (srr > 0.0)
@@ -169,13 +186,9 @@ def _leave_one_out(E: np.ndarray, R: np.ndarray, w: np.ndarray, idx: np.ndarray,
     return abs(E[j] - (e0 - k * R[j])) * math.sqrt(w[j])
 
 
-def refine(
-    arr: RunArrays, idx: np.ndarray, settings: CoastSettings, prior: np.ndarray, sigma_v: float, period: float
-) -> np.ndarray:
+def refine(arr: RunArrays, terms: EnergyTerms, idx: np.ndarray, settings: CoastSettings, period: float) -> np.ndarray:
     """A stretch's samples after pruning its ends and growing it by its neighbours (module docstring)."""
-    E = 0.5 * arr.v * arr.v + arr.gamma
-    R = _trapezoid_in_s(davis_value(prior, arr.v), arr.s)
-    w = 1.0 / np.maximum(energy_noise_var(arr, sigma_v), 1e-12)
+    E, R, w, _ = terms
     while idx.size >= 4:
         worst = max(((pos, _leave_one_out(E, R, w, idx, pos)) for pos in (0, idx.size - 1)), key=lambda x: x[1])
         if worst[1] <= PRUNE_SIGMAS:
@@ -204,7 +217,8 @@ def energy_bounds(
     arr: RunArrays, settings: CoastSettings, prior: np.ndarray, sigma_v: float, period: float
 ) -> tuple[list[tuple[int, int, int, int]], np.ndarray]:
     """(bounds (k0, k1, k0, k1) of the stretches after :func:`refine`, the per-sample candidate flags)."""
-    flag = energy_candidates(arr, settings, prior, sigma_v, period)
+    terms = energy_terms(arr, prior, sigma_v)
+    flag = energy_candidates(arr, terms, settings, period)
     refined: list[list[int]] = []
     min_duration = max(settings.coast_min_duration, 3.0 * period)
     idx = np.flatnonzero(flag)
@@ -213,7 +227,7 @@ def energy_bounds(
         for part in np.split(idx, cuts):
             if part.size < 3:
                 continue
-            part = refine(arr, part, settings, prior, sigma_v, period)
+            part = refine(arr, terms, part, settings, period)
             if part.size < 3:
                 continue
             k0, k1 = int(part[0]), int(part[-1])
@@ -254,11 +268,13 @@ def energy_equations(
 
 
 __all__ = [
+    "EnergyTerms",
     "energy_bounds",
     "energy_candidates",
     "energy_equations",
     "energy_noise_var",
     "energy_sigma_v",
+    "energy_terms",
     "refine",
     "step_grade_error",
     "uses_energy_form",

@@ -467,10 +467,13 @@ class CoastRegression:
         self.__init__(self._train, self.settings, Davis(*self.prior))
 
     def grade_error(self) -> float:
-        """coast_energy.step_grade_error over the moving steps seen (the latest NOISE_SAMPLES), recomputed after
-        every 16 new steps."""
+        """coast_energy.step_grade_error over the moving steps seen (the latest NOISE_SAMPLES)."""
+        return float(np.median(self._grade_errors)) if self._grade_errors else 0.0
+
+    def _grade_error_cached(self) -> float:
+        """grade_error, recomputed after every 16 new steps (the detection asks at every pass)."""
         if self._grade_seen - self._grade_at >= 16 or not math.isfinite(self._grade):
-            self._grade = float(np.median(self._grade_errors)) if self._grade_errors else 0.0
+            self._grade = self.grade_error()
             self._grade_at = self._grade_seen
         return self._grade
 
@@ -571,7 +574,7 @@ class CoastRegression:
         if period >= cfg.coast_energy_period:  # the energy form's columns only where it may apply
             arr.s, arr.gamma = np.asarray(self._s), np.asarray(self._gamma)
             arr.s_var, arr.v_var = np.asarray(self._s_var), np.asarray(self._v_var)
-            if uses_energy_form(arr, cfg, period, self.grade_error()):
+            if uses_energy_form(arr, cfg, period, self._grade_error_cached()):
                 return self._detect_energy(arr, sv, period)
         self.window = window = slope_window(cfg, sv, period, self.prior, self._v_max)
         by_speed, by_power = candidate_steps(arr, cfg, self.prior, sv, window, period)

@@ -27,7 +27,7 @@ from train_calib_msgs.msg import DrivingFeatures, DrivingRegime, ResistanceEstim
 
 from ..estimation.features import Features
 from ..estimation.records import EFFORT_COMPUTED, EstimateSample
-from ..measurement import Measurement
+from ..measurement import Measurement, track_force_integral_of
 from . import cdr
 from .slots import bare, check_layout
 
@@ -140,15 +140,8 @@ def measurement_from_msg(msg: Any) -> Measurement:
         bool(msg.power_valid),
         float(msg.power_consumed),
         float(msg.power_regenerated),
-        _track_force_integral(msg),
+        track_force_integral_of(msg),
     )
-
-
-def _track_force_integral(msg: Any) -> float:
-    """TrackMeasurement.track_force_integral, NaN where unknown: absent (bags recorded before the field) or left at
-    the message's default 0.0 by a publisher that does not fill it (Gamma is 0 only at s = 0)."""
-    value = float(getattr(msg, "track_force_integral", math.nan))
-    return math.nan if value == 0.0 and float(msg.s) != 0.0 else value
 
 
 # -- ResistanceEstimate -----------------------------------------------------------------------------
