@@ -16,7 +16,8 @@ from synthetic_bag import write_bag
 
 from train_calib import bagio, cli, paths
 from train_calib.estimation.records import EFFORT_SOURCES
-from train_calib.pipeline import run_bag
+from train_calib.pipeline import run_bag, whole_run_regimes
+from train_calib.regime_codes import REGIME_NAMES
 from train_calib.summary import window_fit_from_msg
 from train_calib.track import load_track
 from train_calib.train import load_train
@@ -127,6 +128,13 @@ def test_replay_writes_output_bag_summary_and_report(bag, tmp_path, capsys):
         assert on_board["std"] > 0.0 and best["std"] > 0.0
         assert abs(best["value"] - reference.best.resistance(int(kmh) / 3.6)[0]) < 1e-12
     assert summary["best"]["coasting_stretches"] == len(reference.best.stretches)
+    # the whole run's regimes: the offline pipeline's (pipeline.whole_run_regimes) from the recorded topics
+    whole = [r.regime for r in whole_run_regimes(reference, load_train(TRAIN))]
+    on_board = [r.regime for r in reference.regimes]
+    regimes = summary["regimes"]
+    assert regimes["whole_run"] == {name: whole.count(code) for code, name in enumerate(REGIME_NAMES)}
+    assert regimes["on_board"] == {name: on_board.count(code) for code, name in enumerate(REGIME_NAMES)}
+    assert regimes["samples_relabelled"] == sum(a != b for a, b in zip(whole, on_board))
     # a second replay into the same directory is refused unless --overwrite
     assert cli.main(argv) == 2
     assert "output.mcap: already exists" in capsys.readouterr().err

@@ -17,9 +17,11 @@ from __future__ import annotations
 import math
 from collections import deque
 from collections.abc import Iterable, Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
+
+import numpy as np
 
 from .bagio import GNSS_TOPIC, INPUT_TOPICS, POWER_TOPIC, SPEED_TOPIC, iter_bag
 from .cdr_inputs import read_input_events
@@ -31,6 +33,7 @@ from .estimation import (
     RegimeConfig,
     ResistanceEstimator,
     UKFConfig,
+    classify_regimes,
 )
 from .estimation.coast_regression import CoastFit, CoastSettings, RunArrays, fit_coasts
 from .estimation.effort import PowerEffort
@@ -338,6 +341,37 @@ def whole_run_best(measurements: list[Measurement], estimator: ResistanceEstimat
     settings = CoastSettings.from_config(estimator.config)
     arrays = RunArrays.from_series(series, estimator.train, settings)
     return fit_coasts(arrays, estimator.train, settings, estimator.prior)
+
+
+def whole_run_regimes(out: PipelineOutput, train: TrainSpec, config: RegimeConfig | None = None) -> list[RegimeRecord]:
+    """The run's regimes given the whole run (offline), record for record beside ``out.regimes``: the classifier
+    over the published estimates with the inputs regime_node gives it (the traction power's state, s and
+    Gamma(s) of each estimate's measurement), ``smooth=True`` (with ``imm``: :mod:`.estimation.regime_imm_smoother`;
+    with ``hmm``: forward-backward). The phase stays the published one. Not causal: never what the graph publishes."""
+    cfg = config if config is not None else RegimeConfig()
+    if not out.estimates or cfg.method == "rule":
+        return list(out.regimes)
+    by_stamp = {(m.stamp_ns, m.run_id): m for m in out.measurements}
+    meas = [by_stamp.get((e.stamp_ns, e.run_id)) for e in out.estimates]
+    power = PowerEffort(train)
+    states = [power_state(m, power) for m in meas]
+
+    def column(values: Iterable[Any]) -> np.ndarray:
+        return np.array([np.nan if x is None else x for x in values], dtype=float)
+
+    est = out.estimates
+    regimes = classify_regimes(
+        column(e.effort for e in est), column(e.acceleration for e in est), cfg, speed=column(e.v for e in est),
+        effort_known=[bool(e.effort_known) for e in est],
+        opposing_force=column(None if e.resistance is None or e.track_force is None else e.resistance + e.track_force
+                              for e in est),
+        speed_measured=column(e.v_measured for e in est), time=[e.stamp_ns * 1e-9 for e in est],
+        power=[-1 if p is None else p for p in states], track_force=column(e.track_force for e in est),
+        position=column(None if m is None else m.s for m in meas),
+        track_force_integral=column(None if m is None else m.track_force_integral for m in meas),
+        smooth=cfg.method in ("imm", "hmm"),
+    )  # fmt: skip
+    return [replace(r, regime=int(k)) for r, k in zip(out.regimes, regimes.tolist())]
 
 
 def bag_messages(bag: str | Path) -> Iterator[tuple[str, Any]]:

@@ -15,13 +15,18 @@ import math
 from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
 
 from .bagio import iter_bag, stamp_ns
 from .estimation.coast_regression import CoastSettings, RunArrays, fit_coasts, resistance_and_sigma
+from .estimation.config import RegimeConfig
+from .estimation.effort import PowerEffort
 from .estimation.records import EFFORT_COMPUTED, EFFORT_SOURCES
+from .estimation.regime_model import power_state
+from .estimation.regimes import classify_regimes
 from .measurement import track_force_integral_of
 from .physics import KMH, davis
 from .regime_codes import REGIME_NAMES, regime_name
@@ -97,7 +102,8 @@ def read_outputs(bag: str | Path) -> Outputs:
             est.append(
                 (stamp_ns(msg.header), msg.run_id, msg.s, msg.v, msg.r0, msg.r1, msg.r2, std[2], std[3], std[4],
                  msg.effort, msg.acceleration, msg.health, msg.effort_known, msg.nis,
-                 getattr(msg, "effort_source", EFFORT_COMPUTED))  # bags recorded before effort_source: computed
+                 getattr(msg, "effort_source", EFFORT_COMPUTED),  # bags recorded before effort_source: computed
+                 msg.resistance, msg.track_force, msg.v_measured)
             )  # fmt: skip
         elif m.topic == REGIME:
             reg.append((stamp_ns(msg.header), msg.regime, msg.v, msg.run_id))
@@ -146,7 +152,8 @@ def read_outputs(bag: str | Path) -> Outputs:
     if est:
         a = list(zip(*est))
         names = ("t", "run_id", "s", "v", "r0", "r1", "r2", "std_r0", "std_r1", "std_r2", "effort", "acceleration",
-                 "health", "effort_known", "nis", "effort_source")  # fmt: skip
+                 "health", "effort_known", "nis", "effort_source",
+                 "resistance", "track_force", "v_measured")  # fmt: skip
         out.est = {n: np.array(col) for n, col in zip(names, a)}
         out.est["t"] = (np.array(a[0], dtype=np.int64) - t0) * 1e-9
     if reg:
@@ -331,6 +338,50 @@ def best_estimate(
     return out
 
 
+def whole_run_regimes(outputs: Outputs, train: TrainSpec, config: RegimeConfig | None = None) -> dict[str, Any]:
+    """The published regimes (on board) beside the whole run's (``classify_regimes(..., smooth=True)`` over the
+    recorded estimates, with each one's measurement: the traction power's state, s and Gamma(s); as
+    ``pipeline.whole_run_regimes``), as sample counts per regime and the number of samples whose label differs.
+    ``config``: the regime configuration (the defaults if None)."""
+    cfg = config if config is not None else RegimeConfig()
+    est, meas, reg = outputs.est, outputs.meas, outputs.regime
+    if not est or not reg or len(reg["t"]) != len(est["t"]):
+        return {"note": "no regimes recorded, or not one per estimate"}
+    index = {t: k for k, t in enumerate(meas["t"].tolist())} if meas else {}
+    rows = [index.get(t) for t in est["t"].tolist()]
+
+    def at_measurement(name: str) -> np.ndarray | None:
+        if not meas or name not in meas:
+            return None
+        return np.array([np.nan if k is None else float(meas[name][k]) for k in rows])
+
+    power = PowerEffort(train)
+    states = [
+        -1 if k is None else power_state(SimpleNamespace(**{c: meas[c][k] for c in POWER_COLUMNS}), power) for k in rows
+    ]
+    whole = classify_regimes(
+        est["effort"], est["acceleration"], cfg, speed=est["v"], effort_known=est["effort_known"].astype(bool),
+        opposing_force=est["resistance"] + est["track_force"], speed_measured=est["v_measured"],
+        time=est["t"], power=[-1 if p is None else p for p in states], track_force=est["track_force"],
+        position=at_measurement("s"), track_force_integral=at_measurement("track_force_integral"), smooth=True,
+    )  # fmt: skip
+    on_board = np.asarray(reg["regime"])
+
+    def counts(labels: np.ndarray) -> dict[str, int]:
+        return {name: int(np.count_nonzero(labels == code)) for code, name in enumerate(REGIME_NAMES)}
+
+    return {
+        "method": f"{cfg.method}, smoothed over the whole run (offline)",
+        "on_board": counts(on_board),
+        "whole_run": counts(whole),
+        "samples_relabelled": int(np.count_nonzero(whole != on_board)),
+    }
+
+
+POWER_COLUMNS = ("power_valid", "power_consumed", "power_regenerated")
+"""The measurement's traction power, as regime_model.power_state reads it."""
+
+
 def regime_shares(features: list[dict[str, Any]]) -> dict[str, float]:
     """Time shares over all runs: each run's closing features weighted by its run time."""
     closing = run_features(features)
@@ -404,6 +455,8 @@ def summarize(
         summary["window"] = window_summary(outputs.windows, train, truth)
         summary["window"]["pooled"] = window_pooled(outputs.windows[-1])
     summary["regime_share"] = regime_shares(outputs.features)
+    if train is not None:
+        summary["regimes"] = whole_run_regimes(outputs, train)
     summary["dropped"] = dropped_counts(outputs)
     summary["dropped_total"] = sum(n for t in summary["dropped"].values() for r in t.values() for n in r.values())
     summary["repaired"] = dropped_counts(outputs, "repaired")
@@ -470,6 +523,14 @@ def format_summary(summary: dict[str, Any]) -> str:
             "Regime time shares: "
             + ", ".join(f"{name} {100 * shares[name]:.1f} %" for name in REGIME_NAMES[1:] if name in shares)
             + (f", standing/unknown {100 * shares.get('unknown', 0.0):.1f} %" if shares.get("unknown") else "")
+        )
+    regimes = summary.get("regimes", {})
+    if "whole_run" in regimes:
+        moving = sum(n for name, n in regimes["whole_run"].items() if name != REGIME_NAMES[0])
+        lines.append(
+            f"Regimes given the whole run (offline): {regimes['samples_relabelled']} of {moving} moving samples "
+            "labelled otherwise than on board; samples "
+            + ", ".join(f"{name} {regimes['whole_run'][name]}" for name in REGIME_NAMES[1:])
         )
     for run in summary.get("runs", []):
         f = run.get("features")

@@ -118,6 +118,16 @@ class ImmFilter:
     def speed_noise(self) -> float:
         return self._noise
 
+    @property
+    def time(self) -> float:
+        """Time (s) of the last sample filtered (NaN before the first)."""
+        return self._t
+
+    @staticmethod
+    def is_start(probabilities: tuple[float, ...] | None) -> bool:
+        """True for the probabilities a (re)start sets (the departure prior): the sample began a new sequence."""
+        return probabilities == _IMM_START
+
     def step(self, t: float, z: float, w: float, power: int | None = None) -> int:
         """The regime at time t (s) given the measured speed z (m/s), r + g = w (N/kg) and the traction power's state
         (POWER_*, None: not measured)."""

@@ -67,6 +67,7 @@ import numpy as np
 from ..regime_codes import BRAKING, COASTING, CRUISING, REGIME_NAMES, TRACTION, UNKNOWN  # noqa: F401 (re-exported)
 from .config import RegimeConfig
 from .regime_imm import ImmFilter
+from .regime_imm_smoother import ImmStep, whole_run_labels
 from .regime_model import (  # noqa: F401 (POWER_* re-exported)
     DEFAULT_W,
     LOG_SQRT_2PI,
@@ -111,6 +112,7 @@ class RegimeClassifier:
         "_g_prev",
         "_hmm",
         "_imm",
+        "_imm_input",
         "_known_log",
         "_lagged",
         "_lam",
@@ -162,6 +164,7 @@ class RegimeClassifier:
             self._imm.reset()
         self._w_last = math.nan
         self._w_speed = math.nan
+        self._imm_input = (math.nan, math.nan)  # (measured speed m/s, r + g N/kg) of the imm's last sample
         self._g_prev: tuple[float, float] | None = None  # (s m, Gamma J/kg) of the last sample that had them
 
     @property
@@ -264,6 +267,7 @@ class RegimeClassifier:
         g_here = _float(track_force) if track_force is not None else None
         if g_mean is not None and g_here is not None and math.isfinite(g_here):
             w_imm += g_mean - g_here
+        self._imm_input = (z, w_imm)
         return self._imm.step(t, z, w_imm, power)
 
     def _step_track_force(self, position: float | None, integral: float | None) -> float | None:
@@ -370,8 +374,9 @@ def classify_regimes(
 
     ``rule``: vectorised. ``hmm``: the classifier's filter over the (flattened) samples in order, as the node
     runs it (:mod:`.regimes_batch`: the same operations arranged for numpy), so the result is the node's
-    message for message. ``smooth`` (``hmm`` only; offline): each sample's regime given the whole run
-    (forward-backward) -- more often right (docs/estimator.md), never what the node publishes. ``imm``: the
+    message for message. ``smooth`` (``hmm`` and ``imm``; offline): each sample's regime given the whole run
+    (forward-backward; with ``imm`` on the imm's own mode probabilities, :mod:`.regime_imm_smoother`) -- more often
+    right (docs/estimator.md), never what the node publishes. ``imm``: the
     classifier per sample in order (``time`` in s and ``speed`` needed, else the regime is the phase), with the
     optional per-sample ``power`` (POWER_*; None or negative: not measured), ``track_force``, ``position`` and
     ``track_force_integral`` as ``classify`` takes them (the pipeline's labels sample for sample).
@@ -381,10 +386,9 @@ def classify_regimes(
     cfg = config if config is not None else RegimeConfig()
     e, a = np.broadcast_arrays(np.asarray(effort, dtype=float), np.asarray(acceleration, dtype=float))
     if cfg.method == "imm":
-        if smooth:
-            raise ValueError("smooth: only with method hmm")
         extra = (power, track_force, position, track_force_integral)
-        out, phases = _classify_each(e, a, cfg, speed, effort_known, opposing_force, speed_measured, time, extra)
+        out, phases = _classify_each(e, a, cfg, speed, effort_known, opposing_force, speed_measured, time, extra,
+                                     smooth)  # fmt: skip
         return (out, phases) if phase else out
     if cfg.method != "hmm":
         out = _classify_rule(e, a, cfg, speed, smooth)
@@ -405,10 +409,15 @@ def classify_regimes(
     return (out, out.copy()) if phase else out
 
 
-def _classify_each(e, a, cfg, speed, effort_known, opposing_force, speed_measured, time, extra=(None,) * 4):
+def _classify_each(e, a, cfg, speed, effort_known, opposing_force, speed_measured, time, extra=(None,) * 4,
+                   smooth=False):  # fmt: skip
     """``imm``: RegimeClassifier.classify per sample in order; (regimes, phases) of e's shape. ``extra``: power
-    (POWER_*; None or a negative value: not measured), track_force, position, track_force_integral, or None each."""
+    (POWER_*; None or a negative value: not measured), track_force, position, track_force_integral, or None each.
+    ``smooth``: the regimes the imm gave are replaced by the whole-run ones (:mod:`.regime_imm_smoother`)."""
     clf = RegimeClassifier(cfg)
+    imm = clf._imm
+    steps: list[ImmStep] = []
+    stepped: list[int] = []
 
     def flat(x, dtype):
         return [None] * e.size if x is None else np.broadcast_to(np.asarray(x, dtype=dtype), e.shape).ravel().tolist()
@@ -424,10 +433,31 @@ def _classify_each(e, a, cfg, speed, effort_known, opposing_force, speed_measure
     phases = np.empty(e.size, dtype=np.uint8)
     rows = zip(e.ravel().tolist(), a.ravel().tolist(), *columns)
     for i, (ei, ai, v, known, w, z, t, pw, g, s, gam) in enumerate(rows):
+        before = (imm.probabilities(), imm.time) if smooth else None
         out[i] = clf.classify(ei, ai, v, effort_known=known, opposing_force=w, speed_measured=z, time=t, power=pw,
                               track_force=g, position=s, track_force_integral=gam)  # fmt: skip
         phases[i] = clf.phase
+        if before is not None:
+            step = _imm_step(imm, *before, *clf._imm_input)
+            if step is not None:
+                steps.append(step)
+                stepped.append(i)
+    if steps:
+        out[stepped] = whole_run_labels(steps, cfg.imm_mean_dwell, cfg.imm_switch_max, cfg.imm_speed_noise_std)
     return out.reshape(e.shape), phases.reshape(e.shape)
+
+
+def _imm_step(
+    imm: ImmFilter, probabilities: tuple[float, ...] | None, time: float, speed: float, opposing_force: float
+) -> ImmStep | None:
+    """The imm's state after a sample, given its probabilities and time before it and the speed (m/s) and r + g
+    (N/kg) it was given: None where the sample did not reach the imm (standing, NaN, no time or speed: its label is
+    not the imm's)."""
+    after = imm.probabilities()
+    if after is None or (after == probabilities and imm.time == time):
+        return None
+    restarted = probabilities is None or not imm.time > time or ImmFilter.is_start(after)
+    return ImmStep(imm.time, after, restarted, speed, opposing_force)  # type: ignore[arg-type]
 
 
 def _classify_rule(e, a, cfg, speed, smooth) -> np.ndarray:

@@ -1,0 +1,135 @@
+"""Whole-run regimes of the ``imm`` filter (``classify_regimes(..., smooth=True)`` with ``method: imm``, offline).
+
+The imm (:mod:`.regime_imm`) labels a sample from that sample and earlier ones. Over a recorded run the later
+samples are known too, and they tell most of what one sample leaves open: a change inside a long step, a coast
+whose first seconds look like a hold. This module runs the backward recursion of the forward-backward algorithm
+on the mode probabilities the imm computed, within each sequence between restarts, and labels each sample with
+the regime most probable given the whole sequence (the maximum of the posterior marginal, which maximises the
+expected number of right labels).
+
+The imm's step k gives the filtered mode probabilities mu_k = c_k * L_k / sum, where c_k = T_k^T mu_{k-1} is the
+predicted one (T_k: stay on the diagonal, off = switch / 3 elsewhere, switch = min(switch_max, 1 - exp(-dt /
+dwell))) and L_k the likelihood of the sample under each mode (innovation, effort sign, power state). L_k is
+recovered up to a factor as mu_k / c_k, and the backward messages are
+
+    b_K = 1,    b_{k-1} = T_k (L_k * b_k) = keep (L_k * b_k) + off sum(L_k * b_k),    keep = stay - off,
+
+each normalised; the smoothed marginal is mu_k * b_k. This treats the modes as a hidden Markov chain whose
+emissions are the imm's likelihoods (each computed with the mixed prior of the filter): the usual approximation
+of an IMM smoother for the mode probabilities (Helmick, Blair & Hoffman 1995 give the one for the states).
+
+At long steps (both sides of a sample at least ``LONG_STEP_S`` apart) a label names what explains a whole step,
+while a sample's regime is the one at its own instant: where a change falls inside a step, that is the regime of
+the step *after* the sample when the change came before it, of the step before otherwise.
+:func:`regime_at_changes` decides that from the speeds (below). Measured against per-sample truth on the
+validation family: docs/estimator.md, "Regimes".
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from typing import NamedTuple
+
+from ..regime_codes import COASTING, CRUISING
+from .regime_model import most_probable
+
+LONG_STEP_S = 5.0
+"""Samples at least this far apart (s) on both sides get :func:`regime_at_changes`; at 1 Hz a step's speed change
+is within the speed noise and the smoothed label stays."""
+CHANGE_RESIDUAL_STDS = 2.5
+"""regime_at_changes: a step is explained by one regime alone when its speed change is within this many standard
+deviations (sqrt(2) x the speed noise) of what the regime predicts (chosen on the tune half: 1.7-3.3 alike)."""
+
+
+class ImmStep(NamedTuple):
+    """The imm's state after one sample it filtered: ``t`` s, ``probabilities`` of (TRACTION, CRUISING, COASTING,
+    BRAKING), ``restarted`` where the sequence started over (first sample, after a standstill, time not
+    increasing, or every mode rejecting the sample), and its inputs: the measured ``speed`` (m/s) and the
+    ``opposing_force`` r + g over the step (N/kg) the imm took."""
+
+    t: float
+    probabilities: tuple[float, float, float, float]
+    restarted: bool
+    speed: float = math.nan
+    opposing_force: float = math.nan
+
+
+def transition(dt: float, mean_dwell: float, switch_max: float) -> tuple[float, float]:
+    """(stay, off): the imm's probabilities of keeping its mode and of changing to one given other mode over dt s
+    (``ImmFilter``: switch = min(switch_max, 1 - exp(-dt / mean_dwell)), off = switch / 3)."""
+    switch = min(switch_max, -math.expm1(-dt / mean_dwell))
+    return 1.0 - switch, switch / 3.0
+
+
+def smoothed_labels(steps: Sequence[ImmStep], mean_dwell: float, switch_max: float) -> list[int]:
+    """The regime code of each step given the whole sequence it belongs to (module docstring)."""
+    n = len(steps)
+    labels = [0] * n
+    b0 = b1 = b2 = b3 = 1.0
+    for k in range(n - 1, -1, -1):
+        f0, f1, f2, f3 = steps[k].probabilities
+        if k + 1 < n and not steps[k + 1].restarted:  # the message from step k + 1 of the same sequence
+            stay, off = transition(steps[k + 1].t - steps[k].t, mean_dwell, switch_max)
+            keep = stay - off
+            m0, m1, m2, m3 = steps[k + 1].probabilities
+            # L_{k+1} = mu_{k+1} / c_{k+1}, c = off + keep mu_k (the probabilities sum to 1)
+            c0, c1 = m0 / (off + keep * f0) * b0, m1 / (off + keep * f1) * b1
+            c2, c3 = m2 / (off + keep * f2) * b2, m3 / (off + keep * f3) * b3
+            common = off * (c0 + c1 + c2 + c3)
+            b0, b1, b2, b3 = keep * c0 + common, keep * c1 + common, keep * c2 + common, keep * c3 + common
+            total = b0 + b1 + b2 + b3
+            b0, b1, b2, b3 = b0 / total, b1 / total, b2 / total, b3 / total
+        else:  # the last step of a sequence
+            b0 = b1 = b2 = b3 = 1.0
+        labels[k] = most_probable(f0 * b0, f1 * b1, f2 * b2, f3 * b3)
+    return labels
+
+
+def whole_run_labels(steps: Sequence[ImmStep], mean_dwell: float, switch_max: float, speed_noise: float) -> list[int]:
+    """The whole run's regime of each step: :func:`smoothed_labels`, then :func:`regime_at_changes` where the
+    smoothed label changes between two long steps. ``speed_noise``: std of a measured speed (m/s)."""
+    labels = smoothed_labels(steps, mean_dwell, switch_max)
+    return regime_at_changes(steps, labels, CHANGE_RESIDUAL_STDS * math.sqrt(2.0) * speed_noise)
+
+
+def regime_at_changes(steps: Sequence[ImmStep], labels: Sequence[int], tolerance: float) -> list[int]:
+    """The regime at the instant of sample k where the labels of its step (k-1 -> k) and of the next (k -> k+1)
+    differ, a then b, both steps long (``LONG_STEP_S``): a if step k is explained by a alone, b if step k+1 is by b
+    alone. A regime's acceleration over a step: COASTING -(r + g) of the step, CRUISING 0, TRACTION and BRAKING the
+    speed slope of the neighbouring step (k-1 for a, k+2 for b) where that has the same label (else unknown); the
+    residual is |speed change - acceleration x dt| (m/s). Both known: the smaller residual's side; one known: that
+    side if its residual is within ``tolerance`` (m/s), the other else; neither: the label stays a."""
+    out = list(labels)
+    n = len(steps)
+    for k in range(1, n - 1):
+        a, b = labels[k], labels[k + 1]
+        if a == b or steps[k].restarted or steps[k + 1].restarted:
+            continue
+        dt_a, dt_b = steps[k].t - steps[k - 1].t, steps[k + 1].t - steps[k].t
+        if min(dt_a, dt_b) < LONG_STEP_S:
+            continue
+        accel_a = _acceleration(steps, labels, k, a, k - 1)
+        accel_b = _acceleration(steps, labels, k + 1, b, k + 2)
+        res_a = None if accel_a is None else abs(steps[k].speed - steps[k - 1].speed - accel_a * dt_a)
+        res_b = None if accel_b is None else abs(steps[k + 1].speed - steps[k].speed - accel_b * dt_b)
+        if res_a is not None and res_b is not None:
+            out[k] = a if res_a <= res_b else b
+        elif res_a is not None:
+            out[k] = a if res_a <= tolerance else b
+        elif res_b is not None:
+            out[k] = b if res_b <= tolerance else a
+    return out
+
+
+def _acceleration(steps: Sequence[ImmStep], labels: Sequence[int], k: int, regime: int, neighbour: int) -> float | None:
+    """Regime's acceleration (m/s^2) over step k (steps k-1 -> k): -(r + g), 0, or the slope of step ``neighbour``
+    (``neighbour - 1 -> neighbour``) where it has the same label in the same sequence; None where unknown."""
+    if regime == COASTING:
+        return -steps[k].opposing_force if math.isfinite(steps[k].opposing_force) else None
+    if regime == CRUISING:
+        return 0.0
+    if not (1 <= neighbour < len(steps)) or labels[neighbour] != regime or steps[neighbour].restarted:
+        return None
+    before, after = steps[neighbour - 1], steps[neighbour]
+    return (after.speed - before.speed) / (after.t - before.t)
