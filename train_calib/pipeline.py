@@ -100,8 +100,10 @@ class RegimeStream:
     """regime_node's publication rule (shared with :class:`Pipeline`): ``push(sample)`` classifies an estimate and
     returns the (sample, regime, phase) triples to publish now, in order. With ``lag_samples`` 0 that is the sample
     itself; with 1 the previous sample, its phase revised with this one (``RegimeClassifier.revised_previous``; its
-    own causal phase where this sample does not inform it, e.g. a new run; with ``hmm`` the regime is the phase,
-    with ``imm`` the regime stays causal), and this one is held until the next or ``flush()`` (end of input).
+    own causal phase where this sample does not inform it, e.g. a new run; with ``hmm`` the regime is the phase;
+    with ``imm`` the regime at its instant where a change fell inside a long step around it,
+    ``RegimeClassifier.revised_previous_regime``), and this one is held until the next or ``flush()`` (end of
+    input).
     Samples carry ``run_id``; the held one is released with its causal labels when a sample of another run comes."""
 
     def __init__(self, config: RegimeConfig | None = None) -> None:
@@ -129,6 +131,9 @@ class RegimeStream:
                 held_phase = revised
                 if self._revise_regime:
                     held_regime = revised
+            revised_regime = self.classifier.revised_previous_regime  # imm: the regime at the held one's instant
+            if revised_regime is not None and held.run_id == sample.run_id:
+                held_regime = revised_regime
             out.append((held, held_regime, held_phase))
         self._held = (sample, regime, phase)
         return out

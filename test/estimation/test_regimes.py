@@ -738,6 +738,29 @@ WHOLE_RUN_AT_LEAST = {  # the whole run's labels (pipeline.whole_run_regimes), p
 }
 
 
+def test_lag_one_sample_gives_the_imm_regime_at_the_instant_of_a_change_inside_a_10_s_step():
+    """regime_node with lag_samples 1 and the imm: the held sample's regime is revised where a change fell inside
+    a long step around it (traction turning to coasting 2 s before a sample: the causal imm says traction, the
+    speeds after it say coasting); samples away from the change keep their causal regime; lag 0 is causal."""
+    from train_calib.pipeline import RegimeStream
+
+    t = np.arange(0.0, 120.0, 10.0)
+    change_s, w = 58.0, 0.05
+    v = 8.0 + np.where(t < change_s, 0.3 * t, 0.3 * change_s - w * (t - change_s))
+    samples = [SimpleNamespace(stamp_ns=int(tk * 1e9), run_id=0, effort=0.0, acceleration=0.0, v=vk, v_measured=vk,
+                               effort_known=None, resistance=w, track_force=0.0)
+               for tk, vk in zip(t, v)]  # fmt: skip
+    published = {}
+    for lag in (0, 1):
+        stream = RegimeStream(RegimeConfig(lag_samples=lag))
+        out = [pair for s in samples for pair in stream.push(s)] + stream.flush()
+        published[lag] = [regime for _, regime, _ in out]
+    k = int(np.flatnonzero(t == 60.0)[0])
+    assert published[0][k] == TRACTION and published[0][k + 1] == COASTING  # the step 50-60 s is mostly traction
+    assert published[1][k] == COASTING  # at 60 s the train coasts
+    assert [r for i, r in enumerate(published[1]) if i != k] == [r for i, r in enumerate(published[0]) if i != k]
+
+
 def test_whole_run_regimes_of_eco_driving_at_10_s(tmp_path):
     """Two held-out eco runs at 10 s on the Stadelhofen profile (phases of one to three samples): the on-board
     labels miss changes inside a step (0.867, 0.750 measured), the whole run's get them (1.000, 1.000 measured)."""

@@ -447,8 +447,9 @@ class RegimeConfig(ParamSet):
     )
     lag_samples: int = param(
         0,
-        "hmm: 0 publishes each sample's regime at once (causal); 1 publishes it when the next sample has come, given "
-        "that one too (a fixed-lag smoother: more labels right at 10 s sampling, one sample period later)",
+        "0 publishes each sample's regime at once (causal); 1 publishes it when the next sample has come, given "
+        "that one too (one sample period later; hmm: a fixed-lag smoother of the phase; imm: the regime at the "
+        "sample's instant where a change fell inside a step of >= 5 s: eco driving at 10 s 81.9 -> 90.6 %)",
         low=0,
         high=1,
     )

@@ -67,7 +67,7 @@ import numpy as np
 from ..regime_codes import BRAKING, COASTING, CRUISING, REGIME_NAMES, TRACTION, UNKNOWN  # noqa: F401 (re-exported)
 from .config import RegimeConfig
 from .regime_imm import ImmFilter
-from .regime_imm_smoother import ImmStep, whole_run_labels
+from .regime_imm_smoother import CHANGE_RESIDUAL_STDS, ImmStep, regime_at_changes, whole_run_labels
 from .regime_model import (  # noqa: F401 (POWER_* re-exported)
     DEFAULT_W,
     LOG_SQRT_2PI,
@@ -109,10 +109,13 @@ class RegimeClassifier:
     __slots__ = (
         "_b_hi",
         "_b_lo",
+        "_change_tolerance",
         "_g_prev",
         "_hmm",
         "_imm",
+        "_imm_history",
         "_imm_input",
+        "_imm_streak",
         "_known_log",
         "_lagged",
         "_lam",
@@ -122,6 +125,7 @@ class RegimeClassifier:
         "_phase",
         "_prob",
         "_revised",
+        "_revised_regime",
         "_sigma",
         "_t_const",
         "_t_min",
@@ -153,15 +157,19 @@ class RegimeClassifier:
         self._known_log = math.log(cfg.known_coast_odds)
         self._w_rel = cfg.resistance_rel_std
         self._lagged = cfg.lag_samples > 0
+        self._change_tolerance = CHANGE_RESIDUAL_STDS * math.sqrt(2.0) * cfg.imm_speed_noise_std
         self.reset()
 
     def reset(self) -> None:
         """Forget the past samples (an unrelated sequence follows)."""
         self._prob: list[float] | None = None
         self._revised: int | None = None
+        self._revised_regime: int | None = None
+        self._imm_history: list[tuple[ImmStep, int]] = []  # lag_samples 1, imm: the last imm steps and their labels
         self._phase = UNKNOWN
         if self._imm is not None:
             self._imm.reset()
+        self._imm_streak = False
         self._w_last = math.nan
         self._w_speed = math.nan
         self._imm_input = (math.nan, math.nan)  # (measured speed m/s, r + g N/kg) of the imm's last sample
@@ -173,6 +181,14 @@ class RegimeClassifier:
         of the backward recursion: a fixed-lag smoother of one sample); None when the last call did not inform it
         (the last sample was not filtered -- standing, NaN, the rule -- or started a new sequence)."""
         return self._revised
+
+    @property
+    def revised_previous_regime(self) -> int | None:
+        """imm with ``lag_samples`` 1: the regime at the previous sample's instant given the last sample too
+        (:func:`.regime_imm_smoother.regime_at_changes` over the last imm steps: where a change fell inside one of the
+        two long steps around it); None when the last call did not inform it (the last sample did not reach the imm,
+        or the previous one was not the imm's last)."""
+        return self._revised_regime
 
     @property
     def phase(self) -> int:
@@ -225,6 +241,10 @@ class RegimeClassifier:
         at 10 s the train runs 200-300 m in a step, over gradients that may change every few tens of metres.
         """
         self._revised = None
+        self._revised_regime = None
+        streak, self._imm_streak = self._imm_streak, False  # did the previous call reach the imm?
+        if not streak:
+            self._imm_history.clear()
         self._phase = UNKNOWN
         e = _float(effort)
         a = _float(acceleration)
@@ -268,7 +288,28 @@ class RegimeClassifier:
         if g_mean is not None and g_here is not None and math.isfinite(g_here):
             w_imm += g_mean - g_here
         self._imm_input = (z, w_imm)
-        return self._imm.step(t, z, w_imm, power)
+        if not self._lagged:
+            return self._imm.step(t, z, w_imm, power)
+        return self._lagged_imm_step(t, z, w_imm, power)
+
+    def _lagged_imm_step(self, t: float, z: float, w: float, power: int | None) -> int:
+        """The imm's step with ``lag_samples`` 1: also the previous sample's regime at its instant
+        (:attr:`revised_previous_regime`) from the last four imm steps."""
+        imm = self._imm
+        before, t_before = imm.probabilities(), imm.time
+        regime = imm.step(t, z, w, power)
+        self._imm_streak = True
+        after = imm.probabilities()
+        restarted = before is None or not t > t_before or ImmFilter.is_start(after)
+        history = self._imm_history
+        if restarted:
+            history.clear()
+        history.append((ImmStep(t, after, restarted, z, w), regime))  # type: ignore[arg-type]
+        del history[:-4]
+        if len(history) >= 3:
+            steps, labels = zip(*history)
+            self._revised_regime = regime_at_changes(steps, labels, self._change_tolerance)[-2]
+        return regime
 
     def _step_track_force(self, position: float | None, integral: float | None) -> float | None:
         """The mean g (N/kg) over the step from the previous (s, Gamma) to this one; None where unknown or where the
