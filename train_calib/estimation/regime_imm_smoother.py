@@ -32,7 +32,7 @@ from collections.abc import Sequence
 from typing import NamedTuple
 
 from ..regime_codes import COASTING, CRUISING
-from .regime_model import most_probable
+from .regime_model import backward_message, most_probable
 
 LONG_STEP_S = 5.0
 """Samples at least this far apart (s) on both sides get :func:`regime_at_changes`; at 1 Hz a step's speed change
@@ -76,10 +76,7 @@ def smoothed_labels(steps: Sequence[ImmStep], mean_dwell: float, switch_max: flo
             # L_{k+1} = mu_{k+1} / c_{k+1}, c = off + keep mu_k (the probabilities sum to 1)
             c0, c1 = m0 / (off + keep * f0) * b0, m1 / (off + keep * f1) * b1
             c2, c3 = m2 / (off + keep * f2) * b2, m3 / (off + keep * f3) * b3
-            common = off * (c0 + c1 + c2 + c3)
-            b0, b1, b2, b3 = keep * c0 + common, keep * c1 + common, keep * c2 + common, keep * c3 + common
-            total = b0 + b1 + b2 + b3
-            b0, b1, b2, b3 = b0 / total, b1 / total, b2 / total, b3 / total
+            b0, b1, b2, b3 = backward_message(c0, c1, c2, c3, keep, off)
         else:  # the last step of a sequence
             b0 = b1 = b2 = b3 = 1.0
         labels[k] = most_probable(f0 * b0, f1 * b1, f2 * b2, f3 * b3)

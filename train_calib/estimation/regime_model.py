@@ -62,3 +62,15 @@ def power_state(measurement, power: PowerEffort, threshold: float = POWER_THRESH
     if measurement.power_regenerated > 0.0:
         return POWER_REGEN
     return POWER_TRACTION if power.wheel_power(measurement.power_consumed) > threshold else POWER_OFF
+
+
+def backward_message(
+    c0: float, c1: float, c2: float, c3: float, keep: float, share: float
+) -> tuple[float, float, float, float]:
+    """One step of the backward recursion of the forward-backward algorithm over the four regimes: T c normalised,
+    for c = the next sample's likelihoods times its backward message and T = keep I + share 1 1^T (the transition
+    matrix of both filters: stay on the diagonal, share to each other regime, keep = stay - share)."""
+    common = share * (c0 + c1 + c2 + c3)
+    b0, b1, b2, b3 = keep * c0 + common, keep * c1 + common, keep * c2 + common, keep * c3 + common
+    total = b0 + b1 + b2 + b3
+    return b0 / total, b1 / total, b2 / total, b3 / total

@@ -24,7 +24,7 @@ import numpy as np
 from scipy.special import erf, erfc
 
 from ..regime_codes import UNKNOWN
-from .regime_model import DEFAULT_W, LOG_SQRT_2PI, SQRT2, START_PRIOR, most_probable, rule
+from .regime_model import DEFAULT_W, LOG_SQRT_2PI, SQRT2, START_PRIOR, backward_message, most_probable, rule
 
 if TYPE_CHECKING:  # annotations only: regimes imports this module
     from .regimes import RegimeClassifier
@@ -166,11 +166,7 @@ def _smoothed(likelihood: list[list[float]], starts: list[bool], clf: RegimeClas
     for i in range(n - 1, -1, -1):
         if i + 1 < n and not starts[i + 1]:  # the message from sample i + 1 of the same sequence
             l0, l1, l2, l3 = likelihood[i + 1]
-            c0, c1, c2, c3 = l0 * b0, l1 * b1, l2 * b2, l3 * b3
-            common = switch * (c0 + c1 + c2 + c3)
-            b0, b1, b2, b3 = keep * c0 + common, keep * c1 + common, keep * c2 + common, keep * c3 + common
-            total = b0 + b1 + b2 + b3
-            b0, b1, b2, b3 = b0 / total, b1 / total, b2 / total, b3 / total
+            b0, b1, b2, b3 = backward_message(l0 * b0, l1 * b1, l2 * b2, l3 * b3, keep, switch)
         else:  # the last sample of a sequence
             b0 = b1 = b2 = b3 = 1.0
         f0, f1, f2, f3 = filtered[i]
