@@ -32,6 +32,7 @@ from collections.abc import Sequence
 from typing import NamedTuple
 
 from ..regime_codes import COASTING, CRUISING
+from .regime_imm import ImmFilter
 from .regime_model import backward_message, most_probable
 
 LONG_STEP_S = 5.0
@@ -130,3 +131,16 @@ def _acceleration(steps: Sequence[ImmStep], labels: Sequence[int], k: int, regim
         return None
     before, after = steps[neighbour - 1], steps[neighbour]
     return (after.speed - before.speed) / (after.t - before.t)
+
+
+def imm_step_after(
+    imm: ImmFilter, probabilities: tuple[float, ...] | None, time: float, speed: float, opposing_force: float
+) -> ImmStep | None:
+    """The imm's state after a sample, given its probabilities and time before it and the speed (m/s) and r + g
+    (N/kg) it was given: None where the sample did not reach the imm (standing, NaN, no time or speed: its label is
+    not the imm's)."""
+    after = imm.probabilities()
+    if after is None or (after == probabilities and imm.time == time):
+        return None
+    restarted = probabilities is None or not imm.time > time or ImmFilter.is_start(after)
+    return ImmStep(imm.time, after, restarted, speed, opposing_force)  # type: ignore[arg-type]

@@ -9,7 +9,9 @@ from __future__ import annotations
 
 import math
 
-from ..regime_codes import BRAKING, COASTING, CRUISING, TRACTION
+import numpy as np
+
+from ..regime_codes import BRAKING, COASTING, CRUISING, TRACTION, UNKNOWN
 from .config import RegimeConfig
 from .effort import PowerEffort
 
@@ -74,3 +76,24 @@ def backward_message(
     b0, b1, b2, b3 = keep * c0 + common, keep * c1 + common, keep * c2 + common, keep * c3 + common
     total = b0 + b1 + b2 + b3
     return b0 / total, b1 / total, b2 / total, b3 / total
+
+
+def rule_array(e: np.ndarray, a: np.ndarray, cfg: RegimeConfig, speed, smooth: bool) -> np.ndarray:
+    """:func:`rule` vectorised over arrays of effort e (N/kg) and acceleration a (m/s^2) of one shape; UNKNOWN where
+    NaN or, with ``speed`` (m/s), standing."""
+    if smooth:
+        raise ValueError("smooth: only with method hmm (the rule has no state to smooth)")
+    coast = np.abs(e) <= cfg.effort_tolerance
+    if cfg.hold_detection:
+        coast &= ~((np.abs(a) < np.abs(e)) & (np.abs(a) <= cfg.cruise_tolerance))
+    out = np.where(
+        coast,
+        COASTING,
+        np.where(np.abs(a) <= cfg.cruise_tolerance, CRUISING, np.where(e > 0.0, TRACTION, BRAKING)),
+    ).astype(np.uint8)
+    bad = np.isnan(e) | np.isnan(a)
+    if speed is not None:
+        v = np.broadcast_to(np.asarray(speed, dtype=float), e.shape)
+        bad = bad | ~(v >= cfg.standstill_speed)
+    out[bad] = UNKNOWN
+    return out

@@ -67,7 +67,7 @@ import numpy as np
 from ..regime_codes import BRAKING, COASTING, CRUISING, REGIME_NAMES, TRACTION, UNKNOWN  # noqa: F401 (re-exported)
 from .config import RegimeConfig
 from .regime_imm import ImmFilter
-from .regime_imm_smoother import CHANGE_RESIDUAL_STDS, ImmStep, regime_at_changes, whole_run_labels
+from .regime_imm_smoother import CHANGE_RESIDUAL_STDS, ImmStep, imm_step_after, regime_at_changes, whole_run_labels
 from .regime_model import (  # noqa: F401 (POWER_* re-exported)
     DEFAULT_W,
     LOG_SQRT_2PI,
@@ -79,6 +79,7 @@ from .regime_model import (  # noqa: F401 (POWER_* re-exported)
     most_probable,
     power_state,
     rule,
+    rule_array,
 )
 from .regimes_batch import classify_hmm
 
@@ -296,15 +297,16 @@ class RegimeClassifier:
         """The imm's step with ``lag_samples`` 1: also the previous sample's regime at its instant
         (:attr:`revised_previous_regime`) from the last four imm steps."""
         imm = self._imm
-        before, t_before = imm.probabilities(), imm.time
+        before = imm.probabilities(), imm.time
         regime = imm.step(t, z, w, power)
         self._imm_streak = True
-        after = imm.probabilities()
-        restarted = before is None or not t > t_before or ImmFilter.is_start(after)
+        step = imm_step_after(imm, *before, z, w)
         history = self._imm_history
-        if restarted:
+        if step is None or step.restarted:
             history.clear()
-        history.append((ImmStep(t, after, restarted, z, w), regime))  # type: ignore[arg-type]
+        if step is None:
+            return regime
+        history.append((step, regime))
         del history[:-4]
         if len(history) >= 3:
             steps, labels = zip(*history)
@@ -432,7 +434,7 @@ def classify_regimes(
                                      smooth)  # fmt: skip
         return (out, phases) if phase else out
     if cfg.method != "hmm":
-        out = _classify_rule(e, a, cfg, speed, smooth)
+        out = rule_array(e, a, cfg, speed, smooth)
         return (out, out.copy()) if phase else out
 
     def flat(x, dtype):
@@ -479,43 +481,10 @@ def _classify_each(e, a, cfg, speed, effort_known, opposing_force, speed_measure
                               track_force=g, position=s, track_force_integral=gam)  # fmt: skip
         phases[i] = clf.phase
         if before is not None:
-            step = _imm_step(imm, *before, *clf._imm_input)
+            step = imm_step_after(imm, *before, *clf._imm_input)
             if step is not None:
                 steps.append(step)
                 stepped.append(i)
     if steps:
         out[stepped] = whole_run_labels(steps, cfg.imm_mean_dwell, cfg.imm_switch_max, cfg.imm_speed_noise_std)
     return out.reshape(e.shape), phases.reshape(e.shape)
-
-
-def _imm_step(
-    imm: ImmFilter, probabilities: tuple[float, ...] | None, time: float, speed: float, opposing_force: float
-) -> ImmStep | None:
-    """The imm's state after a sample, given its probabilities and time before it and the speed (m/s) and r + g
-    (N/kg) it was given: None where the sample did not reach the imm (standing, NaN, no time or speed: its label is
-    not the imm's)."""
-    after = imm.probabilities()
-    if after is None or (after == probabilities and imm.time == time):
-        return None
-    restarted = probabilities is None or not imm.time > time or ImmFilter.is_start(after)
-    return ImmStep(imm.time, after, restarted, speed, opposing_force)  # type: ignore[arg-type]
-
-
-def _classify_rule(e, a, cfg, speed, smooth) -> np.ndarray:
-    """``rule`` vectorised."""
-    if smooth:
-        raise ValueError("smooth: only with method hmm (the rule has no state to smooth)")
-    coast = np.abs(e) <= cfg.effort_tolerance
-    if cfg.hold_detection:
-        coast &= ~((np.abs(a) < np.abs(e)) & (np.abs(a) <= cfg.cruise_tolerance))
-    out = np.where(
-        coast,
-        COASTING,
-        np.where(np.abs(a) <= cfg.cruise_tolerance, CRUISING, np.where(e > 0.0, TRACTION, BRAKING)),
-    ).astype(np.uint8)
-    bad = np.isnan(e) | np.isnan(a)
-    if speed is not None:
-        v = np.broadcast_to(np.asarray(speed, dtype=float), e.shape)
-        bad = bad | ~(v >= cfg.standstill_speed)
-    out[bad] = UNKNOWN
-    return out
