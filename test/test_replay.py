@@ -230,3 +230,17 @@ def test_bundled_bags_are_present():
     if not _bundled_bags():
         pytest.skip("no bundled bags yet in bags/")
     assert (REPO / "bags" / "intercity_32km_10s_00" / "metadata.yaml").is_file()
+
+
+def test_whole_run_regimes_take_regime_node_parameters_from_the_params_files(tmp_path):
+    """replay's summary.json classifies the whole run with regime_node's parameters as the nodes read them: each
+    --params-file in order, a later file's value winning; the defaults where none sets one."""
+    from train_calib.commands.replay import regime_parameters
+    from train_calib.estimation import RegimeConfig
+
+    first, second = tmp_path / "a.yaml", tmp_path / "b.yaml"
+    first.write_text("regime_node:\n  ros__parameters:\n    imm_mean_dwell: 20.0\n    lag_samples: 1\n")
+    second.write_text("/**:\n  ros__parameters:\n    imm_mean_dwell: 30.0\n")
+    assert regime_parameters([]) == RegimeConfig()
+    assert regime_parameters([str(first)]) == RegimeConfig(imm_mean_dwell=20.0, lag_samples=1)
+    assert regime_parameters([str(first), str(second)]) == RegimeConfig(imm_mean_dwell=30.0, lag_samples=1)

@@ -363,7 +363,8 @@ def whole_run_regimes(outputs: Outputs, train: TrainSpec, config: RegimeConfig |
         est["effort"], est["acceleration"], cfg, speed=est["v"], effort_known=est["effort_known"].astype(bool),
         opposing_force=est["resistance"] + est["track_force"], speed_measured=est["v_measured"],
         time=est["t"], power=[-1 if p is None else p for p in states], track_force=est["track_force"],
-        position=at_measurement("s"), track_force_integral=at_measurement("track_force_integral"), smooth=True,
+        position=at_measurement("s"), track_force_integral=at_measurement("track_force_integral"),
+        smooth=cfg.method != "rule",
     )  # fmt: skip
     on_board = np.asarray(reg["regime"])
 
@@ -371,7 +372,8 @@ def whole_run_regimes(outputs: Outputs, train: TrainSpec, config: RegimeConfig |
         return {name: int(np.count_nonzero(labels == code)) for code, name in enumerate(REGIME_NAMES)}
 
     return {
-        "method": f"{cfg.method}, smoothed over the whole run (offline)",
+        "method": f"{cfg.method}, "
+        + ("smoothed over the whole run (offline)" if cfg.method != "rule" else "per sample"),
         "on_board": counts(on_board),
         "whole_run": counts(whole),
         "samples_relabelled": int(np.count_nonzero(whole != on_board)),
@@ -411,8 +413,10 @@ def summarize(
     truth: dict[str, float] | None = None,
     extra: dict[str, Any] | None = None,
     coast: CoastSettings | None = None,
+    regime: RegimeConfig | None = None,
 ) -> dict[str, Any]:
-    """The summary.json content (``coast``: the settings of the whole run's best estimate, the defaults if None)."""
+    """The summary.json content (``coast``: the settings of the whole run's best estimate, ``regime``: regime_node's,
+    for the whole run's regimes; the defaults if None)."""
     est = outputs.est
     summary: dict[str, Any] = dict(extra or {})
     if train is not None:
@@ -456,7 +460,7 @@ def summarize(
         summary["window"]["pooled"] = window_pooled(outputs.windows[-1])
     summary["regime_share"] = regime_shares(outputs.features)
     if train is not None:
-        summary["regimes"] = whole_run_regimes(outputs, train)
+        summary["regimes"] = whole_run_regimes(outputs, train, regime)
     summary["dropped"] = dropped_counts(outputs)
     summary["dropped_total"] = sum(n for t in summary["dropped"].values() for r in t.values() for n in r.values())
     summary["repaired"] = dropped_counts(outputs, "repaired")

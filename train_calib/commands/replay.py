@@ -23,11 +23,14 @@ import sys
 import tempfile
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from ..bagio import bag_name
 from ..errors import BagError
 from ..isolation import MAX_DOMAIN_ID
+
+if TYPE_CHECKING:  # the command imports the core lazily
+    from ..estimation.config import RegimeConfig
 
 NAME = "replay"
 HELP = "replay a bag through the node graph; write output.mcap, summary.json, report.png"
@@ -180,6 +183,23 @@ def load_truth(
     return truth
 
 
+def regime_parameters(params_files: list[str]) -> RegimeConfig:
+    """regime_node's parameters from the ``--params-file`` files, as the nodes read them (a later file's value wins),
+    for the whole run's regimes in summary.json (the defaults where no file sets one)."""
+    from dataclasses import fields, replace
+
+    from ..estimation.config import RegimeConfig
+    from ..fleet.params import load_fleet_params
+
+    default = config = RegimeConfig()
+    for path in params_files:
+        given = load_fleet_params(path).configs.get("regime")
+        if given is not None:  # the values the file sets (those that differ from the defaults)
+            names = [f.name for f in fields(given) if getattr(given, f.name) != getattr(default, f.name)]
+            config = replace(config, **{name: getattr(given, name) for name in names})
+    return config
+
+
 def execute(args: argparse.Namespace, out: Path, track: str, train: str) -> dict[str, Any]:
     """Replay, then summary.json and report.png; returns the summary."""
     from .. import paths
@@ -219,11 +239,13 @@ def execute(args: argparse.Namespace, out: Path, track: str, train: str) -> dict
         )
     train_spec = load_train(paths.train_file(train))
     outputs = read_outputs(result.output_bag)
+    regime_config = regime_parameters(args.params_file)
     truth_values = {k: truth[k] for k in ("r0", "r1", "r2")} if truth else None
     summary = summarize(
         outputs,
         train=train_spec,
         truth=truth_values,
+        regime=regime_config,
         extra={
             "bag": str(args.bag),
             "track": track,
