@@ -133,6 +133,16 @@ def test_scalar_track_terms_are_the_track_functions_floats(track):
         assert terms.limit(s) == float(track.speed_limit_at(s))
 
 
+def test_scalar_track_terms_at_is_the_four_terms(track):
+    """``at`` (one look-up per function and end, per released sample) gives the four terms' floats exactly."""
+    for length in (0.0, 150.0):
+        terms = ScalarTrackTerms(track, length)
+        for s in np.concatenate((np.linspace(-50.0, 3100.0, 211), [0.0, 1200.0, 1350.0, 1600.0, 3000.0])):
+            s = float(s)
+            expected = (terms.track_force(s), terms.limit(s), terms.tunnel_fraction(s), terms.track_force_integral(s))
+            assert terms.at(s) == expected
+
+
 def test_window_projector_agrees_with_track_project(track):
     projector = WindowProjector(track)
     rng = np.random.default_rng(5)

@@ -79,22 +79,22 @@ class Releaser:
     ) -> Measurement:
         cfg = self.settings.config
         power = self.pairer.nearest_power(t)
-        terms = self.terms
+        track_force, limit, tunnel_fraction, track_force_integral = self.terms.at(s)
         return Measurement(  # positional, in field order: stamp_ns, s, v, track_force, dt, run_id, s_measured,
             t,  # s_variance, v_variance, cross_track, speed_limit, tunnel_fraction, power_valid, power_consumed,
             s,  # power_regenerated, track_force_integral (a keyword call costs more, per sample)
             v,
-            terms.track_force(s),
+            track_force,
             dt,
             run_id,
             fix is not None,
             variance,
             cfg.speed_std**2,
             fix.cross_track if fix is not None else 0.0,
-            terms.limit(s),
-            terms.tunnel_fraction(s),
+            limit,
+            tunnel_fraction,
             power is not None,
             power.consumed if power is not None else 0.0,
             power.regenerated if power is not None else 0.0,
-            terms.track_force_integral(s),
+            track_force_integral,
         )
