@@ -124,19 +124,22 @@ class Ingest:
             fix = replace(fix, stamp_ns=fix.stamp_ns - round(delay * NS))
         reason, late = self.clock.check(GNSS, fix.stamp_ns, self.pairer.fix_stamps)
         reason = reason or fix_problem(fix) or self.matcher.match(fix, late)
-        if reason is None:
+        if reason is None and self.checks.queue:
             self._update_checks()
         return self._settle(GNSS, original, reason)
 
     def add_speed(self, sample: SpeedSample) -> list[Measurement]:
         self.stats.received[SPEED] += 1
-        reason, late = self.clock.check(SPEED, sample.stamp_ns, self.pairer.speed_stamps)
+        pairer = self.pairer
+        reason, late = self.clock.check(SPEED, sample.stamp_ns, pairer.speed_stamps)
         reason = reason or speed_problem(sample, self.settings.config.max_speed) or self._speed_step(sample, late)
         if reason is None:
-            self.pairer.add_speed(sample, late)
+            pairer.add_speed(sample, late)
             if not late:
-                self.checks.add_speed(sample.stamp_ns, sample.v)
-                self._update_checks()
+                checks = self.checks
+                checks.add_speed(sample.stamp_ns, sample.v)
+                if checks.queue:
+                    self._update_checks()
         return self._settle(SPEED, sample, reason)
 
     def add_power(self, sample: PowerSample) -> list[Measurement]:
@@ -183,6 +186,8 @@ class Ingest:
         """The speed-step filter's verdict; the earlier samples of a new level are accepted after all (those not
         yet too late to pair: their ``speed_jump`` counts are taken back)."""
         reason, level = self.steps.check(sample, late)
+        if not level:
+            return reason
         for sp in level:
             if self.clock.unreleased(sp.stamp_ns):
                 self.stats.undrop(SPEED, SPEED_JUMP)
@@ -192,8 +197,8 @@ class Ingest:
         return reason
 
     def _update_checks(self) -> None:
-        if not self.checks.queue:  # no fix waits for the odometer (checks.update would find nothing)
-            return
+        """Feed the odometer checks the fixes it has reached (the callers skip it while ``checks.queue`` is empty:
+        no fix waits for the odometer, update would find nothing)."""
         changes = self.checks.update()
         if changes is NO_CHANGE:
             return

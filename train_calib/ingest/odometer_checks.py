@@ -44,9 +44,10 @@ class OdometerChecks:
 
     def add_speed(self, t_ns: int, v: float) -> None:
         """A speed sample in order (m/s); a gap the odometer does not bridge restarts the checks."""
-        restarts = self.odometer.restarts
-        self.odometer.add(t_ns, v)
-        if self.odometer.restarts != restarts:  # a gap the odometer does not bridge: its distances restart
+        odometer = self.odometer
+        restarts = odometer.restarts
+        odometer.add(t_ns, v)
+        if odometer.restarts != restarts:  # a gap the odometer does not bridge: its distances restart
             self.direction.reset()
             self.delay.reset()
             # the queue is kept: a fix older than the restart finds no odometer distance and is skipped in update(),

@@ -135,19 +135,20 @@ class Pairer:
 
     def trim(self, clock: TimeBase) -> None:
         """Forget fixes and power samples no pending or future speed sample can pair with."""
-        pending = self.pending
+        pending, settings = self.pending, self.settings
         horizon = pending[0].stamp_ns if pending else clock.latest.get(SPEED)
         newest = clock.newest_ns
         if newest is not None:  # a speed stream silent for long must not let them pile up
-            oldest_useful = newest - self.settings.age_ns_int
+            oldest_useful = newest - settings.age_ns_int
             horizon = oldest_useful if horizon is None or oldest_useful > horizon else horizon
         if horizon is None:
             return
-        keep_from = horizon - self.settings.keep_ns
+        keep_from = horizon - settings.keep_ns
         fixes, powers, speeds = self.fixes, self.powers, self.speeds
         while len(fixes) > 1 and fixes[1].stamp_ns <= keep_from:
             fixes.popleft()
-        while len(powers) > 1 and powers[1].stamp_ns <= keep_from:
-            powers.popleft()
+        if powers:
+            while len(powers) > 1 and powers[1].stamp_ns <= keep_from:
+                powers.popleft()
         while len(speeds) > 2 and speeds[1].stamp_ns <= keep_from:
             speeds.popleft()
