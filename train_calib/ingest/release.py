@@ -8,7 +8,7 @@ from ..odometry import BACKWARD
 from ..track import ScalarTrackTerms, Track
 from .config import Settings
 from .odometer_checks import OdometerChecks
-from .pairing import Pairer, nearest
+from .pairing import Pairer, nearest_in_order
 from .position import Anchor
 from .records import NO_POSITION, NS, REVERSING, SPEED, MatchedFix, SpeedSample
 from .runs import RunSegmenter
@@ -62,7 +62,7 @@ class Releaser:
         with speed v; None before the position is acquired or after ``max_dead_reckoning``."""
         settings, pairer = self.settings, self.pairer
         cfg = settings.config
-        fix = nearest(pairer.fixes, t, settings.pair_ns)  # pairer.nearest_fix(t)
+        fix = nearest_in_order(pairer.fixes, t, settings.pair_ns)  # pairer.nearest_fix(t)
         if fix is not None:
             t_fix = fix.stamp_ns
             dt_fix = (t - t_fix) / NS
@@ -82,7 +82,7 @@ class Releaser:
     ) -> Measurement:
         settings = self.settings
         powers = self.pairer.powers
-        power = nearest(powers, t, settings.power_pair_ns) if powers else None  # pairer.nearest_power(t)
+        power = nearest_in_order(powers, t, settings.power_pair_ns) if powers else None  # pairer.nearest_power(t)
         track_force, limit, tunnel_fraction, track_force_integral = self.terms.at(s)
         return Measurement(  # positional, in field order: stamp_ns, s, v, track_force, dt, run_id, s_measured,
             t,  # s_variance, v_variance, cross_track, speed_limit, tunnel_fraction, power_valid, power_consumed,
