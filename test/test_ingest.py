@@ -122,6 +122,23 @@ def test_synchronous_1hz_positions_are_exact_and_track_terms_are_over_the_train(
     assert ms[0].s_variance == pytest.approx(16.0)
 
 
+def test_deferred_track_terms_are_the_terms_computed_per_sample(track, train):
+    """defer_terms + fill_terms (offline: one numpy pass) gives the Measurements of the per-sample ingest, bit for bit,
+    across a clock reset (a bag loop: a new releaser), with the samples flushed at the end computed per sample."""
+    evs = events(track, Profile())
+    evs = evs + evs[:400]  # the bag again from its start: a clock reset
+    reference = run_all(Ingest(track, train), evs)
+    ingest, ms = Ingest(track, train), []
+    ingest.defer_terms()
+    for e in evs:
+        ms += ingest.add(e)
+    assert all(math.isnan(m.track_force) for m in ms)
+    ingest.fill_terms()
+    ms += ingest.flush()
+    assert ingest.stats.clock_resets == 1 and len(ms) == len(reference)
+    assert [repr(m) for m in ms] == [repr(m) for m in reference]
+
+
 def test_pairing_at_different_rates_dead_reckons_between_fixes(track, train):
     """Speed at 10 Hz, fixes at 0.2 Hz offset by 0.37 s, pairing within 0.5 s: one measurement per speed
     sample, s within 0.3 m, paired near the fixes and dead-reckoned between them."""

@@ -160,6 +160,7 @@ class ScalarTrackTerms:
     train length, on plain floats (per sample) with the same arithmetic."""
 
     def __init__(self, track: Track, train_length_m: float) -> None:
+        self.track = track
         self.length = float(train_length_m)
         self.gradient = ScalarPiecewise(track.gradient)
         self.curvature = ScalarPiecewise(track.curvature)
@@ -198,6 +199,17 @@ class ScalarTrackTerms:
             self.limit(s),
             0.0 if f < 0.0 else 1.0 if f > 1.0 else f,
             physics.GRAVITY * (g_integral + c_integral) - self._potential_origin,
+        )
+
+    def at_many(self, s: Sequence[float]) -> tuple[list[float], list[float], list[float], list[float]]:
+        """:meth:`at` of many positions (m) at once, as four lists of floats: the Track's numpy functions, which
+        give the same floats (a whole run's released samples, offline: ~4x faster than one ``at`` each)."""
+        track, length, heads = self.track, self.length, np.asarray(s, dtype=float)
+        return (
+            track.track_force(heads, length).tolist(),
+            track.speed_limit_at(heads).tolist(),
+            track.tunnel_fraction(heads, length).tolist(),
+            track.track_force_integral(heads, length).tolist(),
         )
 
 

@@ -63,6 +63,7 @@ class Ingest:
         self.stats = IngestStats()
         self.runs = RunSegmenter(self.settings)
         self._reset_watch = ClockResetWatch()
+        self._deferred: list[Measurement] | None = None  # Measurements whose track terms wait for fill_terms
         self._init_state()
 
     def _init_state(self) -> None:
@@ -76,6 +77,7 @@ class Ingest:
         parts = (self.clock, self.anchor, self.pairer, self.checks)
         self.matcher = MapMatcher(settings, self.track, self._enu, self._projector, parts, stats)
         self.releaser = Releaser(settings, self.track, self._terms, (*parts, self.runs), stats)
+        self.releaser.deferred = self._deferred
 
     # -- parameters ------------------------------------------------------------------------------
     @property
@@ -160,6 +162,22 @@ class Ingest:
                 out.append(m)
         self.pairer.trim(self.clock)
         return out
+
+    def defer_terms(self) -> None:
+        """From now on the Measurements released leave their track terms (track_force, speed_limit,
+        tunnel_fraction, track_force_integral) NaN until :meth:`fill_terms`: offline, with every Measurement of a
+        bag collected before anything reads them, one numpy pass computes them all (the same floats)."""
+        self._deferred = self.releaser.deferred = []
+
+    def fill_terms(self) -> None:
+        """Set the track terms of the Measurements released since :meth:`defer_terms`, and stop deferring."""
+        deferred = self._deferred
+        self._deferred = self.releaser.deferred = None
+        if not deferred:
+            return
+        terms = self._terms.at_many([m.s for m in deferred])
+        for m, force, limit, tunnel, integral in zip(deferred, *terms):
+            m.track_force, m.speed_limit, m.tunnel_fraction, m.track_force_integral = force, limit, tunnel, integral
 
     def run(self, events: Iterable[GnssFix | SpeedSample | PowerSample]) -> Iterator[Measurement]:
         """Feed events in arrival order, then flush; yields the Measurements."""

@@ -3,6 +3,8 @@ the track terms there, the nearest power sample and its run, as one Measurement.
 
 from __future__ import annotations
 
+import math
+
 from ..measurement import Measurement
 from ..odometry import BACKWARD
 from ..track import ScalarTrackTerms, Track
@@ -33,6 +35,7 @@ class Releaser:
         self.terms = terms
         self.clock, self.anchor, self.pairer, self.checks, self.runs = parts
         self.stats = stats
+        self.deferred: list[Measurement] | None = None  # not None: the track terms are left to the caller (NaN)
 
     def release(self, sample: SpeedSample) -> Measurement | None:
         t, v = sample.stamp_ns, sample.v
@@ -83,8 +86,12 @@ class Releaser:
         settings = self.settings
         powers = self.pairer.powers
         power = nearest_in_order(powers, t, settings.power_pair_ns) if powers else None  # pairer.nearest_power(t)
-        track_force, limit, tunnel_fraction, track_force_integral = self.terms.at(s)
-        return Measurement(  # positional, in field order: stamp_ns, s, v, track_force, dt, run_id, s_measured,
+        deferred = self.deferred
+        if deferred is None:
+            track_force, limit, tunnel_fraction, track_force_integral = self.terms.at(s)
+        else:
+            track_force = limit = tunnel_fraction = track_force_integral = math.nan  # Ingest.fill_terms sets them
+        m = Measurement(  # positional, in field order: stamp_ns, s, v, track_force, dt, run_id, s_measured,
             t,  # s_variance, v_variance, cross_track, speed_limit, tunnel_fraction, power_valid, power_consumed,
             s,  # power_regenerated, track_force_integral (a keyword call costs more, per sample)
             v,
@@ -102,3 +109,6 @@ class Releaser:
             power.regenerated if power is not None else 0.0,
             track_force_integral,
         )
+        if deferred is not None:
+            deferred.append(m)
+        return m
