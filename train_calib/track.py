@@ -223,6 +223,7 @@ class WindowProjector:
         self.x = [float(x) for x in track.east_m]
         self.y = [float(y) for y in track.north_m]
         self.length = self.s[-1]
+        self.segments = len(self.s) - 1
         s, x, y = self.s, self.x, self.y
         # per segment i (vertex i to i + 1): (s0, x0, y0, ds, dx, dy, max(|d|^2, 1e-12)), m and m^2
         self._seg = []
@@ -237,7 +238,7 @@ class WindowProjector:
         hi = end if end < hi else hi  # = min(hi, end)
         if hi < lo:  # the window lies beyond an end of the line: its nearest end
             lo = hi = start if hi < start else end
-        segments = len(s) - 1
+        segments = self.segments
         first = bisect.bisect_right(s, lo) - 1
         first = 0 if first < 0 else segments - 1 if first > segments - 1 else first
         stop = bisect.bisect_left(s, hi)
