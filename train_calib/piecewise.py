@@ -138,11 +138,16 @@ class ScalarPiecewise:
     def mean_over(self, a: float, b: float) -> float:
         """Mean of f over [a, b] (f(b) where the interval is empty)."""
         if b - a > 1e-9:
-            breaks, values, cumulative, last = self.breaks, self.values, self.cumulative, self.last
-            i = bisect.bisect_right(breaks, b) - 1
-            i = 0 if i < 0 else last if i > last else i
-            j = bisect.bisect_right(breaks, a) - 1
-            j = 0 if j < 0 else last if j > last else j
+            breaks, values, cumulative = self.breaks, self.values, self.cumulative
+            i = bisect.bisect_right(breaks, b) - 1  # <= last
+            if i < 0:
+                i = 0
+            if a >= breaks[i]:  # a in b's piece (a < b): the same index
+                j = i
+            else:
+                j = bisect.bisect_right(breaks, a) - 1
+                if j < 0:
+                    j = 0
             return (cumulative[i] + values[i] * (b - breaks[i]) - (cumulative[j] + values[j] * (a - breaks[j]))) / (
                 b - a
             )
