@@ -139,6 +139,19 @@ def test_deferred_track_terms_are_the_terms_computed_per_sample(track, train):
     assert [repr(m) for m in ms] == [repr(m) for m in reference]
 
 
+def test_skipping_the_delay_estimate_changes_nothing_else(track, train):
+    """skip_delay_estimate (offline: nobody reads the estimate) gives the same Measurements and counts, across a
+    clock reset; only gnss_delay_estimate stays None."""
+    evs = events(track, Profile())
+    evs = evs + evs[:400]  # the bag again from its start: a clock reset
+    reference, skipping = Ingest(track, train), Ingest(track, train)
+    skipping.skip_delay_estimate()
+    expected, ms = run_all(reference, evs), run_all(skipping, evs)
+    assert [repr(m) for m in ms] == [repr(m) for m in expected]
+    assert skipping.stats.as_dict() == reference.stats.as_dict() and skipping.stats.clock_resets == 1
+    assert reference.gnss_delay_estimate is not None and skipping.gnss_delay_estimate is None
+
+
 def test_pairing_at_different_rates_dead_reckons_between_fixes(track, train):
     """Speed at 10 Hz, fixes at 0.2 Hz offset by 0.37 s, pairing within 0.5 s: one measurement per speed
     sample, s within 0.3 m, paired near the fixes and dead-reckoned between them."""

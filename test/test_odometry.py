@@ -7,7 +7,7 @@ from collections import deque
 
 import numpy as np
 
-from train_calib.odometry import NS, DelayEstimator, Odometer, _index_from_end
+from train_calib.odometry import NS, Odometer, _index_from_end
 
 
 def test_index_from_end_is_bisect_left():
@@ -34,34 +34,3 @@ def test_odometer_at_between_and_on_samples():
     w = (mid - ts[10]) / (ts[11] - ts[10])
     assert v == speeds[10][1] + w * (speeds[11][1] - speeds[10][1])
     assert d == odometer._d[10] + 0.5 * (speeds[10][1] + v) * (mid - ts[10]) / NS
-
-
-def _fixes(n: int, seed: int) -> list[tuple[int, float, float, float]]:
-    """(t_ns, s_fix, d, v) of a train accelerating and braking, GNSS 0.3 s late with 4 m noise and a few jumps."""
-    rng = np.random.default_rng(seed)
-    out, t, d, v = [], 0, 0.0, 0.0
-    for k in range(n):
-        t += NS
-        v = max(0.0, v + float(rng.uniform(-0.6, 0.8)))
-        d += v
-        s_fix = d - 0.3 * v + float(rng.normal(0.0, 4.0)) + (80.0 if k % 97 == 50 else 0.0)
-        out.append((t, s_fix, d, v))
-    return out
-
-
-def test_lazy_delay_fit_is_the_eager_one():
-    """The fit of the fixes noted is the same whenever it is read: after every fix (the node's diagnostics), only
-    at the end (offline), across a reset and a change of the time constant."""
-    fixes = _fixes(400, 5)
-    eager, lazy = DelayEstimator(300.0, 4.0), DelayEstimator(300.0, 4.0)
-    estimates = []
-    for k, fix in enumerate(fixes):
-        for estimator in (eager, lazy):
-            if k == 150:
-                estimator.time_constant_s = 120.0
-            if k == 250:
-                estimator.reset()
-            estimator.add(*fix)
-        estimates.append(eager.estimate())
-    assert lazy.estimate() == estimates[-1] and lazy.outliers == eager.outliers > 0
-    assert estimates[-1] is not None and abs(estimates[-1][0] - 0.3) < 0.2

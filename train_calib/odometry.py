@@ -100,45 +100,22 @@ class DelayEstimator:
     weak prior (delay 0 +- 1 s, scale error 0 +- 5 %) keeps the fit defined before the train has accelerated;
     a fix whose residual exceeds 5 standard deviations of the fit's prediction (a multipath fix, a
     re-acquisition) is not used.
-
-    The fit is lazy: ``add`` notes the fix, and the fixes noted are fitted in order (the same arithmetic, the same
-    floats) only when something reads the fit (``estimate``, ``outliers``), the time constant changes, a reset
-    comes, or ``MAX_PENDING`` fixes wait. Offline nobody reads the estimate (it is the node's diagnostics).
     """
 
     MIN_WEIGHT = 20.0  # fixes (effective) before an estimate is given
     PRIOR_STD = (math.inf, 1.0, 50.0)  # intercept (free), delay s, scale error m per km
-    MAX_PENDING = 4096  # fixes noted but not fitted yet (bounds the memory of a long run nobody asks about)
 
     def __init__(self, time_constant_s: float = 600.0, sigma_m: float = 4.0) -> None:
-        self._pending: list[tuple[int, float, float, float]] = []  # (t_ns, s_fix, d, v) not fitted yet
-        self._time_constant_s = float(time_constant_s)
+        self.time_constant_s = float(time_constant_s)
         self.sigma_m = float(sigma_m)
-        self._outliers = 0
+        self.outliers = 0
         self._prior = tuple(0.0 if math.isinf(p) else self.sigma_m**2 / p**2 for p in self.PRIOR_STD)
         self.reset()
-
-    @property
-    def time_constant_s(self) -> float:
-        """The forgetting's time constant, s."""
-        return self._time_constant_s
-
-    @time_constant_s.setter
-    def time_constant_s(self, value: float) -> None:
-        self._fit_pending()  # the fixes noted before the change are fitted with the old time constant
-        self._time_constant_s = value
-
-    @property
-    def outliers(self) -> int:
-        """Fixes not used: their residual was beyond 5 standard deviations."""
-        self._fit_pending()
-        return self._outliers
 
     # The normal equations are 3x3: kept as plain floats (a numpy call per fix cost more than the algebra).
     # _a = (a00, a01, a02, a11, a12, a22) of the symmetric sum of x x^T; _inverse the same layout.
 
     def reset(self) -> None:
-        self._fit_pending()  # (their outliers count)
         self._a: tuple[float, ...] = (0.0,) * 6
         self._b: tuple[float, float, float] = (0.0, 0.0, 0.0)
         self._yy = 0.0
@@ -150,23 +127,6 @@ class DelayEstimator:
         self._sigma2 = self.sigma_m**2
 
     def add(self, t_ns: int, s_fix: float, d: float, v: float) -> None:
-        """A fix at t (s_fix m) with the odometer's distance d (m) and speed v (m/s) there: noted, fitted later."""
-        pending = self._pending
-        pending.append((t_ns, s_fix, d, v))
-        if len(pending) >= self.MAX_PENDING:
-            self._fit_pending()
-
-    def _fit_pending(self) -> None:
-        """Fit the fixes noted, in order."""
-        pending = self._pending
-        if pending:
-            self._pending = []
-            fit = self._fit
-            for t_ns, s_fix, d, v in pending:
-                fit(t_ns, s_fix, d, v)
-
-    def _fit(self, t_ns: int, s_fix: float, d: float, v: float) -> None:
-        """One fix into the fit (forgetting, the outlier test, the normal equations, the solution)."""
         d0 = self._d0
         if d0 is None:
             self._d0 = d0 = d
@@ -178,7 +138,7 @@ class DelayEstimator:
             i00, i01, i02, i11, i12, i22 = inv
             quad = i00 + i11 * v * v + i22 * x2 * x2 + 2.0 * (i01 * v + i02 * x2 + i12 * v * x2)
             if residual * residual > 25.0 * self._sigma2 * (1.0 + quad):
-                self._outliers += 1
+                self.outliers += 1
                 return
         a00, a01, a02, a11, a12, a22 = self._a
         b0, b1, b2 = self._b
@@ -186,7 +146,7 @@ class DelayEstimator:
         t_prev = self._t_ns
         if t_prev is not None:
             elapsed = t_ns - t_prev
-            decay = math.exp(-(elapsed if elapsed > 0 else 0) / NS / self._time_constant_s)  # = max(elapsed, 0)
+            decay = math.exp(-(elapsed if elapsed > 0 else 0) / NS / self.time_constant_s)  # = max(elapsed, 0)
             a00, a01, a02, a11, a12, a22 = a00 * decay, a01 * decay, a02 * decay, a11 * decay, a12 * decay, a22 * decay
             b0, b1, b2, yy, w = b0 * decay, b1 * decay, b2 * decay, yy * decay, w * decay
         self._t_ns = t_ns
@@ -224,7 +184,6 @@ class DelayEstimator:
 
     def estimate(self) -> tuple[float, float] | None:
         """(delay, std) in s: the GNSS stamps are this much later than the measurement time."""
-        self._fit_pending()
         if self._beta is None or self._inverse is None or self._w < self.MIN_WEIGHT:
             return None
         var = self._inverse[3] * self._sigma2

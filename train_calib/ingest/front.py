@@ -64,6 +64,7 @@ class Ingest:
         self.runs = RunSegmenter(self.settings)
         self._reset_watch = ClockResetWatch()
         self._deferred: list[Measurement] | None = None  # Measurements whose track terms wait for fill_terms
+        self._estimate_delay = True  # fit the GNSS stamp delay (gnss_delay_estimate)
         self._init_state()
 
     def _init_state(self) -> None:
@@ -72,7 +73,7 @@ class Ingest:
         self.clock = TimeBase(settings)
         self.pairer = Pairer(settings)
         self.anchor = Anchor()
-        self.checks = OdometerChecks(settings.config)
+        self.checks = OdometerChecks(settings.config, self._estimate_delay)
         self.steps = SpeedStepFilter(settings, self.pairer)
         parts = (self.clock, self.anchor, self.pairer, self.checks)
         self.matcher = MapMatcher(settings, self.track, self._enu, self._projector, parts, stats)
@@ -162,6 +163,12 @@ class Ingest:
                 out.append(m)
         self.pairer.trim(self.clock)
         return out
+
+    def skip_delay_estimate(self) -> None:
+        """Fit no fix for the GNSS stamp delay (``gnss_delay_estimate`` stays None; call it before the first
+        sample): offline, where nothing reads the estimate (``pipeline.run_bag``), it is a fifth of the work per fix.
+        Nothing else depends on it: the Measurements and the counts are the same."""
+        self._estimate_delay = self.checks.estimate_delay = False
 
     def defer_terms(self) -> None:
         """From now on the Measurements released leave their track terms (track_force, speed_limit,
