@@ -122,6 +122,36 @@ def test_synchronous_1hz_positions_are_exact_and_track_terms_are_over_the_train(
     assert ms[0].s_variance == pytest.approx(16.0)
 
 
+def test_deferred_track_terms_are_the_terms_computed_per_sample(track, train):
+    """defer_terms + fill_terms (offline: one numpy pass) gives the Measurements of the per-sample ingest, bit for bit,
+    across a clock reset (a bag loop: a new releaser), with the samples flushed at the end computed per sample."""
+    evs = events(track, Profile())
+    evs = evs + evs[:400]  # the bag again from its start: a clock reset
+    reference = run_all(Ingest(track, train), evs)
+    ingest, ms = Ingest(track, train), []
+    ingest.defer_terms()
+    for e in evs:
+        ms += ingest.add(e)
+    assert all(math.isnan(m.track_force) for m in ms)
+    ingest.fill_terms()
+    ms += ingest.flush()
+    assert ingest.stats.clock_resets == 1 and len(ms) == len(reference)
+    assert [repr(m) for m in ms] == [repr(m) for m in reference]
+
+
+def test_skipping_the_delay_estimate_changes_nothing_else(track, train):
+    """skip_delay_estimate (offline: nobody reads the estimate) gives the same Measurements and counts, across a
+    clock reset; only gnss_delay_estimate stays None."""
+    evs = events(track, Profile())
+    evs = evs + evs[:400]  # the bag again from its start: a clock reset
+    reference, skipping = Ingest(track, train), Ingest(track, train)
+    skipping.skip_delay_estimate()
+    expected, ms = run_all(reference, evs), run_all(skipping, evs)
+    assert [repr(m) for m in ms] == [repr(m) for m in expected]
+    assert skipping.stats.as_dict() == reference.stats.as_dict() and skipping.stats.clock_resets == 1
+    assert reference.gnss_delay_estimate is not None and skipping.gnss_delay_estimate is None
+
+
 def test_pairing_at_different_rates_dead_reckons_between_fixes(track, train):
     """Speed at 10 Hz, fixes at 0.2 Hz offset by 0.37 s, pairing within 0.5 s: one measurement per speed
     sample, s within 0.3 m, paired near the fixes and dead-reckoned between them."""

@@ -49,3 +49,14 @@ def test_integral_of_the_integral_by_hand_and_by_quadrature(f):
         assert scalar.mean_integral_over(a, b) == float(f.mean_integral_over(a, b))
         assert float(f.mean_integral_over(a, b)) == pytest.approx((ref - float(f.integral2(a))) / 140.0, rel=1e-12)
     assert float(f.mean_integral_over(300.0, 300.0)) == float(f.integral(300.0))  # an empty interval
+
+
+def test_means_are_mean_over_and_mean_integral_over(f):
+    """The fused per-sample form gives both means' floats exactly (empty intervals and the ends included)."""
+    rng = np.random.default_rng(11)
+    scalar = ScalarPiecewise(f)
+    heads = np.concatenate((rng.uniform(-200.0, 1300.0, 300), f.breaks, f.breaks + 1e-10))
+    for head in heads:
+        for length in (0.0, 1e-10, 37.5, 180.0, 1500.0):
+            a, b = float(head - length), float(head)
+            assert scalar.means(a, b) == (scalar.mean_over(a, b), scalar.mean_integral_over(a, b))

@@ -133,6 +133,27 @@ def test_scalar_track_terms_are_the_track_functions_floats(track):
         assert terms.limit(s) == float(track.speed_limit_at(s))
 
 
+def test_scalar_track_terms_at_is_the_four_terms(track):
+    """``at`` (one look-up per function and end, per released sample) gives the four terms' floats exactly."""
+    for length in (0.0, 150.0):
+        terms = ScalarTrackTerms(track, length)
+        for s in np.concatenate((np.linspace(-50.0, 3100.0, 211), [0.0, 1200.0, 1350.0, 1600.0, 3000.0])):
+            s = float(s)
+            expected = (terms.track_force(s), terms.limit(s), terms.tunnel_fraction(s), terms.track_force_integral(s))
+            assert terms.at(s) == expected
+
+
+def test_scalar_track_terms_at_many_is_at_bit_for_bit(track):
+    """The numpy pass of a whole run's positions gives ``at``'s floats, bit for bit (signed zeros too)."""
+    heads = np.concatenate((np.linspace(-50.0, 3100.0, 631), [0.0, 100.0, 1200.0, 1350.0, 1600.0, 3000.0]))
+    for length in (0.0, 100.0, 150.0):
+        terms = ScalarTrackTerms(track, length)
+        many = terms.at_many(heads.tolist())
+        for k, s in enumerate(heads.tolist()):
+            assert [x.hex() for x in terms.at(s)] == [column[k].hex() for column in many]
+    assert ScalarTrackTerms(track, 100.0).at_many([]) == ([], [], [], [])
+
+
 def test_window_projector_agrees_with_track_project(track):
     projector = WindowProjector(track)
     rng = np.random.default_rng(5)

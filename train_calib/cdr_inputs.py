@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import heapq
 import math
+import operator
 import struct
 import zlib
 from pathlib import Path
@@ -76,13 +77,12 @@ def _file_events(file: Path) -> list[Event]:
     decoder = _Decoder()
     if len(chunks) == 1:  # iter_bag's merge is then a stable sort by log time
         items = _chunk_events(data, chunks[0].chunk_start_offset, kinds, decoder)
-        items.sort(key=_log_time)
+        items.sort(key=_log_time)  # stable: equal log times keep the record order
         return [event for _, event in items]
     return _merged(data, chunks, kinds, decoder)
 
 
-def _log_time(item: tuple[int, Event]) -> int:
-    return item[0]
+_log_time = operator.itemgetter(0)  # (log time, event) -> log time
 
 
 def _merged(data: bytes, chunks: list, kinds: dict[int, int], decoder: _Decoder) -> list[Event]:
@@ -245,7 +245,8 @@ class _Decoder:
         """Every field of the message at pos..end (its 4-byte encapsulation first), checked."""
         if end - pos < 16:
             raise _Unusable
-        unpack, size = self._layout(kind, _U32.unpack_from(buf, pos + 12)[0])
+        length = _U32.unpack_from(buf, pos + 12)[0]
+        unpack, size = self._layouts.get((kind, length)) or self._layout(kind, length)
         if not size <= end - pos <= size + 3:
             raise _Unusable
         values = unpack.unpack_from(buf, pos)

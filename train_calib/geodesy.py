@@ -7,14 +7,15 @@ ellipsoid; heights are ignored (rail GNSS altitude is not used).
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
+from math import cos, radians, sin, sqrt
 
 import numpy as np
 
 WGS84_A = 6378137.0  # semi-major axis, m
 WGS84_F = 1.0 / 298.257223563
 WGS84_E2 = WGS84_F * (2.0 - WGS84_F)  # first eccentricity squared
+_ONE_MINUS_E2 = 1.0 - WGS84_E2
 
 
 def geodetic_to_ecef(lat_deg, lon_deg, h_m=0.0) -> np.ndarray:
@@ -98,13 +99,13 @@ class ScalarEnu:
     def __init__(self, frame: LocalFrame) -> None:
         self._o = tuple(float(x) for x in geodetic_to_ecef(frame.lat0_deg, frame.lon0_deg))
         self._r = tuple(tuple(float(x) for x in row) for row in frame._rotation[:2])
+        self._constants = (*self._o, *self._r[0], *self._r[1])  # origin (m), east and north rows: one unpacking
 
     def __call__(self, lat: float, lon: float) -> tuple[float, float]:
-        lat_r, lon_r = math.radians(lat), math.radians(lon)
-        sin_lat, cos_lat = math.sin(lat_r), math.cos(lat_r)
-        n = WGS84_A / math.sqrt(1.0 - WGS84_E2 * sin_lat * sin_lat)
-        o0, o1, o2 = self._o
-        d0, d1, d2 = (n * cos_lat * math.cos(lon_r) - o0, n * cos_lat * math.sin(lon_r) - o1,
-                      n * (1.0 - WGS84_E2) * sin_lat - o2)  # fmt: skip
-        (r00, r01, r02), (r10, r11, r12) = self._r
+        lat_r, lon_r = radians(lat), radians(lon)
+        sin_lat, cos_lat = sin(lat_r), cos(lat_r)
+        n = WGS84_A / sqrt(1.0 - WGS84_E2 * sin_lat * sin_lat)
+        o0, o1, o2, r00, r01, r02, r10, r11, r12 = self._constants
+        d0, d1, d2 = (n * cos_lat * cos(lon_r) - o0, n * cos_lat * sin(lon_r) - o1,
+                      n * _ONE_MINUS_E2 * sin_lat - o2)  # fmt: skip
         return r00 * d0 + r01 * d1 + r02 * d2, r10 * d0 + r11 * d1 + r12 * d2

@@ -15,7 +15,6 @@ accepted GNSS fixes with it:
 
 from __future__ import annotations
 
-import bisect
 import math
 from collections import deque
 
@@ -33,6 +32,7 @@ class Odometer:
         self.horizon_ns = int(horizon_s * NS)
         self.max_gap_ns = int(max_gap_s * NS)
         self.restarts = 0
+        self.latest_ns: int | None = None  # stamp of the newest sample
         self._t: deque[int] = deque()
         self._d: deque[float] = deque()
         self._v: deque[float] = deque()
@@ -41,29 +41,32 @@ class Odometer:
         self._t.clear()
         self._d.clear()
         self._v.clear()
-
-    @property
-    def latest_ns(self) -> int | None:
-        return self._t[-1] if self._t else None
+        self.latest_ns = None
 
     def add(self, t_ns: int, v: float) -> None:
-        if self._t:
-            if t_ns <= self._t[-1]:
+        ts = self._t
+        if ts:
+            last = ts[-1]
+            if t_ns <= last:
                 return
-            if t_ns - self._t[-1] > self.max_gap_ns:
+            if t_ns - last > self.max_gap_ns:
                 self.clear()
                 self.restarts += 1
-        if self._t:
-            d = self._d[-1] + 0.5 * (self._v[-1] + v) * (t_ns - self._t[-1]) / NS
+                d = 0.0
+            else:
+                d = self._d[-1] + 0.5 * (self._v[-1] + v) * (t_ns - last) / NS
         else:
             d = 0.0
-        self._t.append(t_ns)
+        ts.append(t_ns)
         self._d.append(d)
         self._v.append(v)
-        while len(self._t) > 2 and self._t[1] < t_ns - self.horizon_ns:
-            self._t.popleft()
-            self._d.popleft()
-            self._v.popleft()
+        self.latest_ns = t_ns
+        oldest = t_ns - self.horizon_ns
+        if len(ts) > 2 and ts[1] < oldest:
+            while len(ts) > 2 and ts[1] < oldest:
+                ts.popleft()
+                self._d.popleft()
+                self._v.popleft()
 
     def at(self, t_ns: int) -> tuple[float, float] | None:
         """(distance, speed) at t, interpolated between the samples around it (exact at constant acceleration
@@ -71,7 +74,7 @@ class Odometer:
         ts = self._t
         if not ts or t_ns < ts[0] or t_ns > ts[-1]:
             return None
-        i = bisect.bisect_left(ts, t_ns)
+        i = _index_from_end(ts, t_ns)
         if ts[i] == t_ns:
             return self._d[i], self._v[i]
         t0, t1 = ts[i - 1], ts[i]
@@ -79,6 +82,15 @@ class Odometer:
         w = (t_ns - t0) / (t1 - t0)
         v = v0 + w * (v1 - v0)
         return self._d[i - 1] + 0.5 * (v0 + v) * (t_ns - t0) / NS, v
+
+
+def _index_from_end(ts: deque[int], t_ns: int) -> int:
+    """``bisect.bisect_left(ts, t_ns)`` for increasing stamps with ts[0] <= t_ns <= ts[-1], scanning back from the
+    end (the odometer is asked about the newest fixes: a step or two, where indexing a deque's middle walks it)."""
+    i = len(ts) - 1
+    while i > 0 and ts[i - 1] >= t_ns:
+        i -= 1
+    return i
 
 
 class DelayEstimator:
@@ -104,8 +116,8 @@ class DelayEstimator:
     # _a = (a00, a01, a02, a11, a12, a22) of the symmetric sum of x x^T; _inverse the same layout.
 
     def reset(self) -> None:
-        self._a = [0.0] * 6
-        self._b = [0.0, 0.0, 0.0]
+        self._a: tuple[float, ...] = (0.0,) * 6
+        self._b: tuple[float, float, float] = (0.0, 0.0, 0.0)
         self._yy = 0.0
         self._w = 0.0
         self._t_ns: int | None = None
@@ -115,12 +127,13 @@ class DelayEstimator:
         self._sigma2 = self.sigma_m**2
 
     def add(self, t_ns: int, s_fix: float, d: float, v: float) -> None:
-        if self._d0 is None:
-            self._d0 = d
-        x2 = (d - self._d0) * 1e-3  # x = (1, v, x2)
+        d0 = self._d0
+        if d0 is None:
+            self._d0 = d0 = d
+        x2 = (d - d0) * 1e-3  # x = (1, v, x2)
         y = s_fix - d
-        beta, inv = self._beta, self._inverse
-        if beta is not None and inv is not None and self._w >= self.MIN_WEIGHT:
+        beta, inv, w = self._beta, self._inverse, self._w
+        if beta is not None and inv is not None and w >= self.MIN_WEIGHT:
             residual = y - (beta[0] + beta[1] * v + beta[2] * x2)
             i00, i01, i02, i11, i12, i22 = inv
             quad = i00 + i11 * v * v + i22 * x2 * x2 + 2.0 * (i01 * v + i02 * x2 + i12 * v * x2)
@@ -129,22 +142,26 @@ class DelayEstimator:
                 return
         a00, a01, a02, a11, a12, a22 = self._a
         b0, b1, b2 = self._b
-        yy, w = self._yy, self._w
-        if self._t_ns is not None:
-            decay = math.exp(-max(t_ns - self._t_ns, 0) / NS / self.time_constant_s)
+        yy = self._yy
+        t_prev = self._t_ns
+        if t_prev is not None:
+            elapsed = t_ns - t_prev
+            decay = math.exp(-(elapsed if elapsed > 0 else 0) / NS / self.time_constant_s)  # = max(elapsed, 0)
             a00, a01, a02, a11, a12, a22 = a00 * decay, a01 * decay, a02 * decay, a11 * decay, a12 * decay, a22 * decay
             b0, b1, b2, yy, w = b0 * decay, b1 * decay, b2 * decay, yy * decay, w * decay
         self._t_ns = t_ns
-        self._a = [a00 + 1.0, a01 + v, a02 + x2, a11 + v * v, a12 + v * x2, a22 + x2 * x2]
-        self._b = [b0 + y, b1 + v * y, b2 + x2 * y]
+        self._a = a = (a00 + 1.0, a01 + v, a02 + x2, a11 + v * v, a12 + v * x2, a22 + x2 * x2)
+        self._b = b = (b0 + y, b1 + v * y, b2 + x2 * y)
         self._yy, self._w = yy + y * y, w + 1.0
-        self._solve()
+        self._solve(a, b)
 
-    def _solve(self) -> None:
-        if self._w < 2.0:
+    def _solve(self, a: tuple[float, ...], b: tuple[float, float, float]) -> None:
+        """The fit of the normal equations ``a`` (the layout of ``_a``) and ``b``, with the prior."""
+        w = self._w
+        if w < 2.0:
             return
         p0, p1, p2 = self._prior
-        a00, a01, a02, a11, a12, a22 = self._a
+        a00, a01, a02, a11, a12, a22 = a
         a00, a11, a22 = a00 + p0, a11 + p1, a22 + p2
         c00 = a11 * a22 - a12 * a12  # cofactors of the symmetric matrix
         c01 = a02 * a12 - a01 * a22
@@ -153,20 +170,17 @@ class DelayEstimator:
         if not (math.isfinite(det) and abs(det) > 1e-300):
             return
         f = 1.0 / det
-        inv = (
-            c00 * f,
-            c01 * f,
-            c02 * f,
-            (a00 * a22 - a02 * a02) * f,
-            (a01 * a02 - a00 * a12) * f,
-            (a00 * a11 - a01 * a01) * f,
-        )
-        i00, i01, i02, i11, i12, i22 = inv
-        b0, b1, b2 = self._b
-        beta = (i00 * b0 + i01 * b1 + i02 * b2, i01 * b0 + i11 * b1 + i12 * b2, i02 * b0 + i12 * b1 + i22 * b2)
-        self._beta, self._inverse = beta, inv
-        fit = beta[0] * b0 + beta[1] * b1 + beta[2] * b2
-        self._sigma2 = max((self._yy - fit) / max(self._w - 3.0, 1.0), 0.25)
+        i00, i01, i02 = c00 * f, c01 * f, c02 * f
+        i11, i12, i22 = (a00 * a22 - a02 * a02) * f, (a01 * a02 - a00 * a12) * f, (a00 * a11 - a01 * a01) * f
+        b0, b1, b2 = b
+        beta0 = i00 * b0 + i01 * b1 + i02 * b2
+        beta1 = i01 * b0 + i11 * b1 + i12 * b2
+        beta2 = i02 * b0 + i12 * b1 + i22 * b2
+        self._beta, self._inverse = (beta0, beta1, beta2), (i00, i01, i02, i11, i12, i22)
+        fit = beta0 * b0 + beta1 * b1 + beta2 * b2
+        dof = w - 3.0
+        sigma2 = (self._yy - fit) / (1.0 if dof < 1.0 else dof)  # = max(dof, 1.0)
+        self._sigma2 = 0.25 if sigma2 < 0.25 else sigma2  # = max(sigma2, 0.25)
 
     def estimate(self) -> tuple[float, float] | None:
         """(delay, std) in s: the GNSS stamps are this much later than the measurement time."""
@@ -207,11 +221,12 @@ class DirectionMonitor:
         if track and t_ns <= track[-1][0]:
             return self.direction
         track.append((t_ns, s_fix, d))
-        while len(track) > 2 and (track[0][0] < t_ns - self.horizon_ns or d - track[1][2] >= self.distance_m):
+        oldest, distance = t_ns - self.horizon_ns, self.distance_m
+        while len(track) > 2 and (track[0][0] < oldest or d - track[1][2] >= distance):
             track.popleft()
         _, s_old, d_old = track[0]
         travelled = d - d_old
-        if travelled >= self.distance_m:
+        if travelled >= distance:
             moved = s_fix - s_old
             new = FORWARD if moved > 0.5 * travelled else BACKWARD if moved < -0.5 * travelled else self.direction
             if new != self.direction:

@@ -83,9 +83,10 @@ class Track:
         Exact: the mean over the train of the gradient's and the curves' piecewise-linear integrals,
         (Gamma(s_j) - Gamma(s_i)) / (s_j - s_i) is the mean g over a step from s_i to s_j however often the gradient
         changes inside it (the energy form of the coast regression, docs/estimator.md)."""
-        return self._potential(np.asarray(s_m, dtype=float), train_length_m) - self._potential(
-            np.zeros(1), train_length_m
-        )[0]
+        return (
+            self._potential(np.asarray(s_m, dtype=float), train_length_m)
+            - self._potential(np.zeros(1), train_length_m)[0]
+        )
 
     def _potential(self, s: np.ndarray, train_length_m: float) -> np.ndarray:
         start = s - train_length_m
@@ -159,6 +160,7 @@ class ScalarTrackTerms:
     train length, on plain floats (per sample) with the same arithmetic."""
 
     def __init__(self, track: Track, train_length_m: float) -> None:
+        self.track = track
         self.length = float(train_length_m)
         self.gradient = ScalarPiecewise(track.gradient)
         self.curvature = ScalarPiecewise(track.curvature)
@@ -185,6 +187,31 @@ class ScalarTrackTerms:
         f = self.tunnel.mean_over(s - self.length, s)
         return 0.0 if f < 0.0 else 1.0 if f > 1.0 else f  # = min(max(f, 0), 1), without two builtin calls
 
+    def at(self, s: float) -> tuple[float, float, float, float]:
+        """(:meth:`track_force` N/kg, ``limit`` m/s, :meth:`tunnel_fraction`, :meth:`track_force_integral` J/kg) at
+        s: their floats, with one index look-up per piecewise function and end (per released sample)."""
+        a = s - self.length
+        g_mean, g_integral = self.gradient.means(a, s)
+        c_mean, c_integral = self.curvature.means(a, s)
+        f = self.tunnel.mean_over(a, s)
+        return (
+            physics.GRAVITY * (g_mean + c_mean),
+            self.limit(s),
+            0.0 if f < 0.0 else 1.0 if f > 1.0 else f,
+            physics.GRAVITY * (g_integral + c_integral) - self._potential_origin,
+        )
+
+    def at_many(self, s: Sequence[float]) -> tuple[list[float], list[float], list[float], list[float]]:
+        """:meth:`at` of many positions (m) at once, as four lists of floats: the Track's numpy functions, which
+        give the same floats (a whole run's released samples, offline: ~4x faster than one ``at`` each)."""
+        track, length, heads = self.track, self.length, np.asarray(s, dtype=float)
+        return (
+            track.track_force(heads, length).tolist(),
+            track.speed_limit_at(heads).tolist(),
+            track.tunnel_fraction(heads, length).tolist(),
+            track.track_force_integral(heads, length).tolist(),
+        )
+
 
 class WindowProjector:
     """``Track.project(e, n, s_min, s_max)`` for one point (m) on plain floats, visiting only the segments that
@@ -196,6 +223,7 @@ class WindowProjector:
         self.x = [float(x) for x in track.east_m]
         self.y = [float(y) for y in track.north_m]
         self.length = self.s[-1]
+        self.segments = len(self.s) - 1
         s, x, y = self.s, self.x, self.y
         # per segment i (vertex i to i + 1): (s0, x0, y0, ds, dx, dy, max(|d|^2, 1e-12)), m and m^2
         self._seg = []
@@ -205,13 +233,16 @@ class WindowProjector:
 
     def project(self, e: float, n: float, lo: float, hi: float) -> tuple[float, float]:
         """(s, distance) in m of the nearest track point to (e, n) with s in [lo, hi]."""
-        s = self.s
-        lo, hi = max(lo, s[0]), min(hi, self.length)
+        s, start, end = self.s, self.s[0], self.length
+        lo = start if start > lo else lo  # = max(lo, start)
+        hi = end if end < hi else hi  # = min(hi, end)
         if hi < lo:  # the window lies beyond an end of the line: its nearest end
-            lo = hi = s[0] if hi < s[0] else self.length
-        segments = len(s) - 1
-        first = min(max(bisect.bisect_right(s, lo) - 1, 0), segments - 1)
-        stop = min(max(bisect.bisect_left(s, hi), first + 1), segments)
+            lo = hi = start if hi < start else end
+        segments = self.segments
+        first = bisect.bisect_right(s, lo) - 1
+        first = 0 if first < 0 else segments - 1 if first > segments - 1 else first
+        stop = bisect.bisect_left(s, hi)
+        stop = first + 1 if stop < first + 1 else segments if stop > segments else stop
         best_s, best_d = lo, math.inf
         hypot = math.hypot
         for s0, x0, y0, ds, dx, dy, len2 in self._seg[first:stop]:

@@ -170,3 +170,4 @@ class Settings:
         self.pair_ns = config.pair_tolerance * NS
         self.power_pair_ns = config.power_pair_tolerance * NS
         self.pairing_wait_ns = config.max_pairing_wait * NS
+        self.speed_variance = config.speed_std**2  # (m/s)^2, a Measurement's v_variance

@@ -63,6 +63,8 @@ class Ingest:
         self.stats = IngestStats()
         self.runs = RunSegmenter(self.settings)
         self._reset_watch = ClockResetWatch()
+        self._deferred: list[Measurement] | None = None  # Measurements whose track terms wait for fill_terms
+        self._estimate_delay = True  # fit the GNSS stamp delay (gnss_delay_estimate)
         self._init_state()
 
     def _init_state(self) -> None:
@@ -71,11 +73,12 @@ class Ingest:
         self.clock = TimeBase(settings)
         self.pairer = Pairer(settings)
         self.anchor = Anchor()
-        self.checks = OdometerChecks(settings.config)
+        self.checks = OdometerChecks(settings.config, self._estimate_delay)
         self.steps = SpeedStepFilter(settings, self.pairer)
         parts = (self.clock, self.anchor, self.pairer, self.checks)
         self.matcher = MapMatcher(settings, self.track, self._enu, self._projector, parts, stats)
         self.releaser = Releaser(settings, self.track, self._terms, (*parts, self.runs), stats)
+        self.releaser.deferred = self._deferred
 
     # -- parameters ------------------------------------------------------------------------------
     @property
@@ -124,19 +127,22 @@ class Ingest:
             fix = replace(fix, stamp_ns=fix.stamp_ns - round(delay * NS))
         reason, late = self.clock.check(GNSS, fix.stamp_ns, self.pairer.fix_stamps)
         reason = reason or fix_problem(fix) or self.matcher.match(fix, late)
-        if reason is None:
+        if reason is None and self.checks.queue:
             self._update_checks()
         return self._settle(GNSS, original, reason)
 
     def add_speed(self, sample: SpeedSample) -> list[Measurement]:
         self.stats.received[SPEED] += 1
-        reason, late = self.clock.check(SPEED, sample.stamp_ns, self.pairer.speed_stamps)
+        pairer = self.pairer
+        reason, late = self.clock.check(SPEED, sample.stamp_ns, pairer.speed_stamps)
         reason = reason or speed_problem(sample, self.settings.config.max_speed) or self._speed_step(sample, late)
         if reason is None:
-            self.pairer.add_speed(sample, late)
+            pairer.add_speed(sample, late)
             if not late:
-                self.checks.add_speed(sample.stamp_ns, sample.v)
-                self._update_checks()
+                checks = self.checks
+                checks.add_speed(sample.stamp_ns, sample.v)
+                if checks.queue:
+                    self._update_checks()
         return self._settle(SPEED, sample, reason)
 
     def add_power(self, sample: PowerSample) -> list[Measurement]:
@@ -157,6 +163,28 @@ class Ingest:
                 out.append(m)
         self.pairer.trim(self.clock)
         return out
+
+    def skip_delay_estimate(self) -> None:
+        """Fit no fix for the GNSS stamp delay (``gnss_delay_estimate`` stays None; call it before the first
+        sample): offline, where nothing reads the estimate (``pipeline.run_bag``), it is a fifth of the work per fix.
+        Nothing else depends on it: the Measurements and the counts are the same."""
+        self._estimate_delay = self.checks.estimate_delay = False
+
+    def defer_terms(self) -> None:
+        """From now on the Measurements released leave their track terms (track_force, speed_limit,
+        tunnel_fraction, track_force_integral) NaN until :meth:`fill_terms`: offline, with every Measurement of a
+        bag collected before anything reads them, one numpy pass computes them all (the same floats)."""
+        self._deferred = self.releaser.deferred = []
+
+    def fill_terms(self) -> None:
+        """Set the track terms of the Measurements released since :meth:`defer_terms`, and stop deferring."""
+        deferred = self._deferred
+        self._deferred = self.releaser.deferred = None
+        if not deferred:
+            return
+        terms = self._terms.at_many([m.s for m in deferred])
+        for m, force, limit, tunnel, integral in zip(deferred, *terms):
+            m.track_force, m.speed_limit, m.tunnel_fraction, m.track_force_integral = force, limit, tunnel, integral
 
     def run(self, events: Iterable[GnssFix | SpeedSample | PowerSample]) -> Iterator[Measurement]:
         """Feed events in arrival order, then flush; yields the Measurements."""
@@ -183,6 +211,8 @@ class Ingest:
         """The speed-step filter's verdict; the earlier samples of a new level are accepted after all (those not
         yet too late to pair: their ``speed_jump`` counts are taken back)."""
         reason, level = self.steps.check(sample, late)
+        if not level:
+            return reason
         for sp in level:
             if self.clock.unreleased(sp.stamp_ns):
                 self.stats.undrop(SPEED, SPEED_JUMP)
@@ -192,8 +222,8 @@ class Ingest:
         return reason
 
     def _update_checks(self) -> None:
-        if not self.checks.queue:  # no fix waits for the odometer (checks.update would find nothing)
-            return
+        """Feed the odometer checks the fixes it has reached (the callers skip it while ``checks.queue`` is empty:
+        no fix waits for the odometer, update would find nothing)."""
         changes = self.checks.update()
         if changes is NO_CHANGE:
             return

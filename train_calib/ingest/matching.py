@@ -41,27 +41,28 @@ class MapMatcher:
     def match(self, fix: GnssFix, late: bool = False) -> str | None:
         """Match a validated fix: None when it is accepted, else its drop reason (``off_track``, ``jump``)."""
         cfg = self.settings.config
+        t = fix.stamp_ns
         east, north = self.enu(fix.lat, fix.lon)
         variance = self._variance(fix)
-        anchor = self.anchor
+        anchor, last_fix_t = self.anchor, self.last_fix_t
         tracking = (
             anchor.t is not None
-            and (self.last_fix_t is None or abs(fix.stamp_ns - self.last_fix_t) / NS <= cfg.reacquire_gap)
+            and (last_fix_t is None or abs(t - last_fix_t) / NS <= cfg.reacquire_gap)
             and self.clock.silence_ns <= cfg.run_gap * NS  # after every input was silent that long, the whole line
         )
         if tracking:
-            window: tuple[float, float] | None = self._window(fix.stamp_ns)
+            window: tuple[float, float] | None = self._window(t)
         elif anchor.t is None and self.settings.start_s is not None:
             start_s = self.settings.start_s
             window = (start_s - cfg.acquisition_gate, start_s + cfg.acquisition_gate)
         else:
             window = None  # (re-)acquisition on the whole line
         if window is not None:
-            s, d = self.projector.project(east, north, *window)
+            s, d = self.projector.project(east, north, window[0], window[1])
             if d <= cfg.max_cross_track:
-                if not late:
+                if not late and self.candidates:
                     self.candidates.clear()
-                self._accept(MatchedFix(fix.stamp_ns, s, variance, d), tracking and not late)
+                self._accept(MatchedFix(t, s, variance, d), tracking and not late)
                 return None
         s_all, d_all = self.track.project(east, north)
         if d_all > cfg.max_cross_track:
@@ -99,8 +100,9 @@ class MapMatcher:
     def _variance(self, fix: GnssFix) -> float:
         """The fix's horizontal variance (m^2); a known but unusable covariance is repaired (counted)."""
         cfg = self.settings.config
-        if cfg.use_fix_covariance and math.isfinite(fix.horizontal_variance) and fix.horizontal_variance > 0:
-            return fix.horizontal_variance
+        variance = fix.horizontal_variance
+        if cfg.use_fix_covariance and math.isfinite(variance) and variance > 0:
+            return variance
         if cfg.use_fix_covariance and fix.covariance_known:
             self.stats.repaired[GNSS][BAD_COVARIANCE] += 1  # known but NaN, infinite or not positive
         return cfg.position_std**2
@@ -109,18 +111,19 @@ class MapMatcher:
         """The continuity window at t: around the position predicted from the anchor and the speed, along the
         running direction; at low speed (shunting) it also covers the other direction."""
         anchor = self.anchor
-        assert anchor.t is not None
+        anchor_t, anchor_s, anchor_v = anchor.t, anchor.s, anchor.v
+        assert anchor_t is not None
         cfg = self.settings.config
-        dt = (t_ns - anchor.t) / NS
-        v = self.pairer.speed_near(t_ns, anchor.v)
-        travel = 0.5 * (anchor.v + v) * dt
+        dt = (t_ns - anchor_t) / NS
+        v = self.pairer.speed_near(t_ns, anchor_v)
+        travel = 0.5 * (anchor_v + v) * dt
         sign = self.checks.direction.direction
-        since_fix = (t_ns - (self.last_fix_t if self.last_fix_t is not None else anchor.t)) / NS
+        since_fix = (t_ns - (self.last_fix_t if self.last_fix_t is not None else anchor_t)) / NS
         gate = cfg.continuity_gate + cfg.continuity_gate_growth * abs(since_fix)
-        s_pred = anchor.s + sign * travel
+        s_pred = anchor_s + sign * travel
         lo, hi = s_pred - gate, s_pred + gate
-        if max(anchor.v, v) <= cfg.reverse_max_speed:
-            other = anchor.s - sign * travel
+        if (v if v > anchor_v else anchor_v) <= cfg.reverse_max_speed:  # max(anchor_v, v)
+            other = anchor_s - sign * travel
             lo, hi = min(lo, other - gate), max(hi, other + gate)
         return lo, hi
 
@@ -130,10 +133,11 @@ class MapMatcher:
 
     def _accept(self, fix: MatchedFix, checks: bool) -> None:
         """Store an accepted fix (in stamp order); ``checks``: also for the direction and delay checks."""
-        if self.pairer.add_fix(fix) and checks:
+        pairer, t = self.pairer, fix.stamp_ns
+        if pairer.add_fix(fix) and checks:
             self.checks.queue.append(fix)
-        if self.last_fix_t is None or fix.stamp_ns > self.last_fix_t:
-            self.last_fix_t = fix.stamp_ns
+        if self.last_fix_t is None or t > self.last_fix_t:
+            self.last_fix_t = t
         anchor = self.anchor
-        if anchor.t is None or fix.stamp_ns >= anchor.t:
-            anchor.at_fix(fix, self.pairer.speed_near(fix.stamp_ns, anchor.v))
+        if anchor.t is None or t >= anchor.t:
+            anchor.at_fix(fix, pairer.speed_near(t, anchor.v))

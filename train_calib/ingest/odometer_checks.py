@@ -24,10 +24,11 @@ NO_CHANGE = DirectionChanges(0, False)
 class OdometerChecks:
     """Running direction and GNSS stamp delay from the accepted fixes the speed odometer has reached."""
 
-    def __init__(self, config: IngestConfig) -> None:
+    def __init__(self, config: IngestConfig, estimate_delay: bool = True) -> None:
         self.odometer = Odometer(max(config.max_dead_reckoning, config.max_sample_age) + 60.0, config.max_sample_age)
         self.direction = DirectionMonitor(config.reverse_distance)
         self.delay = DelayEstimator(config.delay_window, config.position_std)
+        self.estimate_delay = estimate_delay  # False: no fix is fitted for the delay (its estimate stays None)
         self.queue: deque[MatchedFix] = deque(maxlen=64)  # accepted fixes the odometer has not reached yet
 
     @property
@@ -44,9 +45,10 @@ class OdometerChecks:
 
     def add_speed(self, t_ns: int, v: float) -> None:
         """A speed sample in order (m/s); a gap the odometer does not bridge restarts the checks."""
-        restarts = self.odometer.restarts
-        self.odometer.add(t_ns, v)
-        if self.odometer.restarts != restarts:  # a gap the odometer does not bridge: its distances restart
+        odometer = self.odometer
+        restarts = odometer.restarts
+        odometer.add(t_ns, v)
+        if odometer.restarts != restarts:  # a gap the odometer does not bridge: its distances restart
             self.direction.reset()
             self.delay.reset()
             # the queue is kept: a fix older than the restart finds no odometer distance and is skipped in update(),
@@ -66,7 +68,7 @@ class OdometerChecks:
         latest = self.odometer.latest_ns
         if not queue or latest is None or queue[0].stamp_ns > latest:
             return NO_CHANGE
-        odometer, direction, delay = self.odometer, self.direction, self.delay
+        odometer, direction, delay, estimate_delay = self.odometer, self.direction, self.delay, self.estimate_delay
         reversals, forward_again = 0, False
         while queue and queue[0].stamp_ns <= latest:
             fix = queue.popleft()
@@ -82,6 +84,6 @@ class OdometerChecks:
                     reversals += 1
                 else:
                     forward_again = True
-            elif after == FORWARD:
+            elif after == FORWARD and estimate_delay:
                 delay.add(fix.stamp_ns, fix.s, d, v)
         return DirectionChanges(reversals, forward_again) if reversals or forward_again else NO_CHANGE

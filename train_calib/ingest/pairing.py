@@ -5,7 +5,7 @@ samples). Stamps in ns, speeds in m/s, positions in m."""
 from __future__ import annotations
 
 from collections import deque
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterable, Iterator, Sequence
 from typing import TypeVar
 
 from .config import Settings
@@ -22,6 +22,20 @@ def nearest(samples: Iterable[S], t_ns: int, tolerance_ns: float) -> S | None:
         dt = abs(sample.stamp_ns - t_ns)
         if dt <= best_dt:
             best, best_dt = sample, dt
+    return best
+
+
+def nearest_in_order(samples: Sequence[S], t_ns: int, tolerance_ns: float) -> S | None:
+    """:func:`nearest` of samples in stamp order (the pairer's queues), from the newest back: it stops at the first
+    sample before t farther than the best (every older one is farther still). Per released sample."""
+    best, best_dt = None, tolerance_ns
+    for sample in reversed(samples):
+        stamp = sample.stamp_ns
+        dt = stamp - t_ns if stamp >= t_ns else t_ns - stamp  # = abs(stamp - t_ns)
+        if dt < best_dt or (best is None and dt == best_dt):  # of equally near ones, the later (met first)
+            best, best_dt = sample, dt
+        elif stamp < t_ns and dt > best_dt:
+            break
     return best
 
 
@@ -78,11 +92,11 @@ class Pairer:
     # -- what a stamp pairs with -----------------------------------------------------------------------
     def nearest_fix(self, t_ns: int) -> MatchedFix | None:
         """The accepted fix nearest to t within ``pair_tolerance``."""
-        return nearest(self.fixes, t_ns, self.settings.pair_ns)
+        return nearest_in_order(self.fixes, t_ns, self.settings.pair_ns)
 
     def nearest_power(self, t_ns: int) -> PowerSample | None:
         """The power sample nearest to t within ``power_pair_tolerance``."""
-        return nearest(self.powers, t_ns, self.settings.power_pair_ns)
+        return nearest_in_order(self.powers, t_ns, self.settings.power_pair_ns)
 
     def neighbour_speed(self, t_ns: int) -> SpeedSample | None:
         """The validated speed sample nearest to t (for a late sample)."""
@@ -94,14 +108,14 @@ class Pairer:
         return best
 
     def speed_at(self, t_ns: int, default: float) -> float:
-        """Speed at t interpolated between the validated speed samples around it (nearest beyond them)."""
+        """Speed at t interpolated between the validated speed samples around it (nearest beyond them); they are
+        in stamp order, t is mostly among the newest: searched from the newest back."""
         before = after = None
-        for sp in self.speeds:
+        for sp in reversed(self.speeds):
             if sp.stamp_ns <= t_ns:
                 before = sp
-            else:
-                after = sp
                 break
+            after = sp
         if before is None:
             return after.v if after is not None else default
         if after is None or before.stamp_ns == t_ns:
@@ -135,19 +149,20 @@ class Pairer:
 
     def trim(self, clock: TimeBase) -> None:
         """Forget fixes and power samples no pending or future speed sample can pair with."""
-        pending = self.pending
+        pending, settings = self.pending, self.settings
         horizon = pending[0].stamp_ns if pending else clock.latest.get(SPEED)
         newest = clock.newest_ns
         if newest is not None:  # a speed stream silent for long must not let them pile up
-            oldest_useful = newest - self.settings.age_ns_int
+            oldest_useful = newest - settings.age_ns_int
             horizon = oldest_useful if horizon is None or oldest_useful > horizon else horizon
         if horizon is None:
             return
-        keep_from = horizon - self.settings.keep_ns
+        keep_from = horizon - settings.keep_ns
         fixes, powers, speeds = self.fixes, self.powers, self.speeds
         while len(fixes) > 1 and fixes[1].stamp_ns <= keep_from:
             fixes.popleft()
-        while len(powers) > 1 and powers[1].stamp_ns <= keep_from:
-            powers.popleft()
+        if powers:
+            while len(powers) > 1 and powers[1].stamp_ns <= keep_from:
+                powers.popleft()
         while len(speeds) > 2 and speeds[1].stamp_ns <= keep_from:
             speeds.popleft()

@@ -45,7 +45,7 @@ class SpeedStepFilter:
             # so the fixes of that span must agree too (a spike that merely fits the wider bound does not)
             plausible = self._fixes_agree(ref, sample)
         if dt > cfg.run_gap or plausible:
-            if not late:
+            if not late and (self.step or self.first_ns is not None):
                 self._restart()
             return None, NO_SAMPLES
         if late:

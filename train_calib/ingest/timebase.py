@@ -67,8 +67,12 @@ class TimeBase:
             return True
         latest = self.latest
         gnss = latest.get(GNSS)
-        if not (gnss is not None and gnss >= t_ns) and not self._stream_ready(GNSS, t_ns, required=True):
+        if gnss is None:  # GNSS is waited for from the start: _stream_ready(GNSS, t_ns, required=True)
             return False
+        if gnss < t_ns:
+            period = self.period.get(GNSS)
+            if period is None or gnss + period - t_ns < t_ns - gnss:
+                return False
         return POWER not in latest or self._stream_ready(POWER, t_ns, required=False)
 
     def _stream_ready(self, stream: str, t: int, required: bool) -> bool:
