@@ -103,29 +103,28 @@ def local_slopes(
     slope's standard error per unit of speed noise); NaN where the window holds < 3 samples or its samples span
     less than min(0.8 W, W - 1.5 period) (a hole in the speeds, or the end of the data)."""
     n = t.size
-    a = np.full(n, np.nan)
-    se = np.full(n, np.nan)
     if n < 3:
-        return a, se
-    # a run's samples are contiguous: bound the window inside the run with the run's own index range
-    key = run.astype(float) * 1e7 + (t - t[0])  # runs are ordered in time; 1e7 s separates them
-    lo = np.searchsorted(key, key - 0.5 * window - 1e-6, side="left")
-    hi = np.searchsorted(key, key + 0.5 * window + 1e-6, side="right") - 1
+        return np.full(n, np.nan), np.full(n, np.nan)
     tc = t - t[0]
-    c1 = np.concatenate(([0.0], np.cumsum(tc)))
-    c2 = np.concatenate(([0.0], np.cumsum(tc * tc)))
-    cv = np.concatenate(([0.0], np.cumsum(v)))
-    ctv = np.concatenate(([0.0], np.cumsum(tc * v)))
+    # a run's samples are contiguous: bound the window inside the run with the run's own index range
+    key = run.astype(float) * 1e7 + tc  # runs are ordered in time; 1e7 s separates them
+    lo = key.searchsorted(key - 0.5 * window - 1e-6, side="left")
+    hi = key.searchsorted(key + 0.5 * window + 1e-6, side="right") - 1
+    # prefix sums of (t, t^2, v, t v) from 0, one column each (a column's cumsum is the 1-D one, the same numbers)
+    sums = np.empty((n + 1, 4))
+    sums[0] = 0.0
+    sums[1:, 0] = tc
+    sums[1:, 1] = tc * tc
+    sums[1:, 2] = v
+    sums[1:, 3] = tc * v
+    sums = sums.cumsum(axis=0)
+    st, stt, sv, stv = (sums.take(hi + 1, 0) - sums.take(lo, 0)).T  # take: sums[hi + 1] - sums[lo], faster
     cnt = (hi - lo + 1).astype(float)
-    st = c1[hi + 1] - c1[lo]
-    stt = c2[hi + 1] - c2[lo]
-    sv = cv[hi + 1] - cv[lo]
-    stv = ctv[hi + 1] - ctv[lo]
     sxx = stt - st * st / np.maximum(cnt, 1.0)
-    ok = (cnt >= 3) & (tc[hi] - tc[lo] >= min(0.8 * window, window - 1.5 * period)) & (sxx > 0.0)
-    a[ok] = (stv[ok] - st[ok] * sv[ok] / cnt[ok]) / sxx[ok]
-    se[ok] = 1.0 / np.sqrt(sxx[ok])
-    return a, se
+    ok = (cnt >= 3) & (tc.take(hi) - tc.take(lo) >= min(0.8 * window, window - 1.5 * period)) & (sxx > 0.0)
+    a = np.divide(stv - st * sv / cnt, sxx, out=np.full(n, np.nan), where=ok)
+    se = np.sqrt(sxx, out=np.full(n, np.nan), where=ok)
+    return a, np.divide(1.0, se, out=se, where=ok)
 
 
 @dataclass
@@ -169,7 +168,7 @@ def slope_window(settings: CoastSettings, sigma_v: float, period: float, prior: 
     r_ref = max(float(davis_value(prior, 0.5 * v_max)), 1e-4)
     w = (sigma_v * sigma_v * 12.0 * period / (settings.coast_slope_precision * r_ref) ** 2) ** (1.0 / 3.0)
     lower = max(settings.coast_window_min, settings.coast_window_samples * period)
-    return float(np.clip(w, lower, max(lower, 90.0)))
+    return float(min(max(w, lower), max(lower, 90.0)))  # np.clip's numbers on scalars
 
 
 def candidate_steps(
@@ -180,10 +179,11 @@ def candidate_steps(
     steps: samples whose power shows neither traction nor regeneration (``power_decides``), with the apparent
     resistance not beyond 1.6 coast_ratio_max (a brake without electric braking). Samples whose power shows
     traction or electric braking are never candidates."""
-    a, se = local_slopes(arr.t, arr.v, arr.run, window, period)
+    t, v = arr.t, arr.v
+    a, se = local_slopes(t, v, arr.run, window, period)
     with np.errstate(invalid="ignore", divide="ignore"):
-        ratio = -(a + arr.g) / np.maximum(davis_value(prior, arr.v), 1e-6)
-        moving = arr.v >= settings.coast_min_speed
+        ratio = -(a + arr.g) / np.maximum(davis_value(prior, v), 1e-6)
+        moving = v >= settings.coast_min_speed
         by_speed = (
             (ratio >= settings.coast_ratio_min)
             & (ratio <= settings.coast_ratio_max)
@@ -191,17 +191,20 @@ def candidate_steps(
             & moving
             & np.isfinite(a)
         )
-        by_power = np.zeros_like(by_speed)
+        by_power = None  # no power measured: no power steps
         if arr.power is not None and settings.power_decides:
             known = arr.power != POWER_UNKNOWN
             by_speed &= ~known
             by_power = (arr.power == POWER_NONE) & moving & ~(ratio > 1.6 * settings.coast_ratio_max)
+    n = t.size
+    joint = None  # per step i >= 1: samples i-1 and i in the same run, no gap between them
+    if n > 1:
+        joint = (arr.run[1:] == arr.run[:-1]) & (t[1:] - t[:-1] <= min(settings.max_gap, 2.5 * period))
     steps = []
     for cand in (by_speed, by_power):
-        step = np.zeros(arr.t.size, dtype=bool)
-        if arr.t.size > 1:
-            gap = min(settings.max_gap, 2.5 * period)
-            step[1:] = cand[1:] & cand[:-1] & (arr.run[1:] == arr.run[:-1]) & (np.diff(arr.t) <= gap)
+        step = np.zeros(n, dtype=bool)
+        if joint is not None and cand is not None:
+            step[1:] = cand[1:] & cand[:-1] & joint
         steps.append(step)
     return steps[0], steps[1]
 
@@ -212,17 +215,18 @@ def stretch_bounds(
     """(k0, k1, i, j) per stretch: samples k0..k1 after trimming; candidate steps i..j (untrimmed)."""
     t = arr.t
     out = []
-    idx = np.flatnonzero(step)
+    idx = step.nonzero()[0]
     if idx.size == 0:
         return out
-    breaks = np.flatnonzero(np.diff(idx) > 1)
-    starts = np.concatenate(([idx[0]], idx[breaks + 1]))
-    ends = np.concatenate((idx[breaks], [idx[-1]]))
+    breaks = ((idx[1:] - idx[:-1]) > 1).nonzero()[0]
+    starts = [int(idx[0]), *idx[breaks + 1].tolist()]
+    ends = [*idx[breaks].tolist(), int(idx[-1])]
+    tl = t.tolist()
     for i, j in zip(starts, ends):
-        k0 = int(np.searchsorted(t, t[i - 1] + trim - 1e-6))
-        k1 = int(np.searchsorted(t, t[j] - trim + 1e-6)) - 1
-        if k1 > k0 and t[k1] - t[k0] >= min_duration:
-            out.append((k0, k1, int(i), int(j)))
+        k0 = int(t.searchsorted(tl[i - 1] + trim - 1e-6))
+        k1 = int(t.searchsorted(tl[j] - trim + 1e-6)) - 1
+        if k1 > k0 and tl[k1] - tl[k0] >= min_duration:
+            out.append((k0, k1, i, j))
     return out
 
 
@@ -325,7 +329,8 @@ def nonnegative(r: np.ndarray, cov: np.ndarray) -> np.ndarray:
 def _period(t: np.ndarray) -> float:
     """Median sample interval (s) of the rising stamps; 1 s without one. The median of a Python sort (the same
     value as numpy's median, at a tenth of its cost on the few dozen samples a causal detection holds)."""
-    d = sorted(x for x in np.diff(t).tolist() if x > 0.0)
+    d = t[1:] - t[:-1]
+    d = sorted(d[d > 0.0].tolist())
     n = len(d)
     if not n:
         return 1.0
@@ -487,7 +492,8 @@ class CoastRegression:
         q = self._quantum if math.isfinite(self._quantum) else 0.0
         if not (self._d2 or q):
             return 0.08
-        return noise_from_differences(np.asarray(self._d2), np.asarray(self._d3), q)
+        d2, d3 = self._d2, self._d3
+        return noise_from_differences(np.fromiter(d2, float, len(d2)), np.fromiter(d3, float, len(d3)), q)
 
     def push(
         self,
@@ -558,14 +564,14 @@ class CoastRegression:
 
     def _detect(self) -> bool:
         cfg = self.settings
-        power = np.asarray(self._power, dtype=np.int8)
+        powered = self._power.count(POWER_UNKNOWN) < len(self._power)
         arr = RunArrays(
             np.asarray(self._t),
             np.asarray(self._v),
             np.asarray(self._g),
             np.asarray(self._tun),
             np.asarray(self._run, dtype=np.int64),
-            power if np.any(power != POWER_UNKNOWN) else None,
+            np.asarray(self._power, dtype=np.int8) if powered else None,
         )
         if arr.t.size < 3:
             return False
@@ -636,7 +642,7 @@ class CoastRegression:
             self._used_until = float(arr.t[pieces[-1][1]])
             changed = True
         keep_t = horizon - window
-        idx = np.flatnonzero(step)
+        idx = step.nonzero()[0]
         late = idx[arr.t[idx] > horizon] if idx.size else idx
         self._open = bool(late.size)
         if late.size:
@@ -644,7 +650,7 @@ class CoastRegression:
             while i > 0 and step[i - 1]:
                 i -= 1
             keep_t = min(keep_t, float(arr.t[i - 1]) - window if i > 0 else float(arr.t[0]))
-        self._keep_from(int(np.searchsorted(arr.t, keep_t)))
+        self._keep_from(int(arr.t.searchsorted(keep_t)))
         return changed
 
     def _posterior(self) -> tuple[np.ndarray, np.ndarray]:
