@@ -69,11 +69,25 @@ def prior_covariance(davis: Davis | tuple[float, float, float], scale_std: float
     return scale_std**2 * np.outer(r, r) + np.diag(np.maximum(coefficient_std * np.abs(r), floor) ** 2)
 
 
+def median(x: np.ndarray) -> float:
+    """``float(np.median(x))`` of a non-empty 1-D float array without np.median's generic machinery (a third of
+    its cost on the speed-noise estimate's thousand differences): the same partition, the middle value or the two
+    middle ones' mean as np.mean computes it, NaN when the array holds one."""
+    n = x.size
+    h = n // 2
+    even = n % 2 == 0
+    part = np.partition(x, [h - 1, h, -1] if even else [h, -1])
+    if math.isnan(part[-1]):
+        return math.nan
+    # np.mean's sum starts from 0.0 (a -0.0 median reads 0.0)
+    return float((0.0 + part[h - 1] + part[h]) / 2.0) if even else float(0.0 + part[h])
+
+
 def noise_from_differences(d2: np.ndarray, d3: np.ndarray, quantum: float) -> float:
     """Speed noise std (m/s) from second and third differences of the moving speeds: the smaller of their MADs
     (scaled by sqrt(6), sqrt(20)) -- a changing acceleration inflates the second differences at 10 s sampling, the
     third cancel a steady change -- and at least the resolution / sqrt(12)."""
-    mads = [float(np.median(np.abs(d))) / 0.6745 / math.sqrt(c) for d, c in ((d2, 6.0), (d3, 20.0)) if d.size]
+    mads = [median(np.abs(d)) / 0.6745 / math.sqrt(c) for d, c in ((d2, 6.0), (d3, 20.0)) if d.size]
     robust = min(mads) if mads else 0.0
     return max(robust, quantum / math.sqrt(12.0), _MIN_SPEED_NOISE)
 
@@ -463,6 +477,8 @@ class CoastRegression:
         self._d2_seen = 0
         self._sv, self._sv_at = math.nan, 0
         self._period = math.nan  # s, the latest sample interval
+        self._refresh_wait = float(self.REFRESH)  # s between detections: max(REFRESH, REFRESH_PERIODS * _period)
+        self._v_min = settings.coast_min_speed  # m/s
         self._moved = False  # a moving sample since the last detection
         self._moving_before = False  # the previous sample was moving
         self._open = False  # the last detection left a candidate run open
@@ -512,49 +528,58 @@ class CoastRegression:
         in J/kg, s_var m^2 and v_var (m/s)^2 for the energy form); True when r or its covariance changed."""
         if not (math.isfinite(t) and math.isfinite(v) and math.isfinite(g)):
             return False
-        if self._t and t <= self._t[-1]:
-            if run_id == self._run[-1]:
+        ts, vs, runs = self._t, self._v, self._run
+        n = len(ts)
+        if n and t <= ts[-1]:
+            if run_id == runs[-1]:
                 return False  # an older or repeated stamp within the run: not a measurement to use
-            self._keep_from(len(self._t))  # a new run on a new time base (clock reset): what was learnt stays
+            self._keep_from(n)  # a new run on a new time base (clock reset): what was learnt stays
             self._used_until = self._last_detect = -math.inf
-        if self._v:
-            dv = abs(v - self._v[-1])
+            n = 0
+        v_min = self._v_min
+        if n:  # the noise and grade-error terms of the step from the previous sample
+            v1 = vs[-1]
+            same_run = runs[-1] == run_id
+            dv = abs(v - v1)
             if dv > 1e-4:
                 self._quantum = min(self._quantum, dv)
-            if len(self._v) >= 2 and self._v[-1] > 5.0 and self._run[-1] == run_id == self._run[-2]:
-                self._d2.append(v - 2.0 * self._v[-1] + self._v[-2])
+            if n >= 2 and v1 > 5.0 and same_run and run_id == runs[-2]:
+                v2 = vs[-2]
+                self._d2.append(v - 2.0 * v1 + v2)
                 self._d2_seen += 1
-                if len(self._v) >= 3 and self._run[-3] == run_id and self._v[-2] > 5.0:
-                    self._d3.append(v - 3.0 * self._v[-1] + 3.0 * self._v[-2] - self._v[-3])
-        if self._s and self._v and self._run[-1] == run_id and math.isfinite(gamma) and math.isfinite(self._gamma[-1]):
-            ds = s - self._s[-1]
-            v_min = self.settings.coast_min_speed
-            if ds > 1.0 and v >= v_min and self._v[-1] >= v_min:
-                v_mid = 0.5 * (v + self._v[-1])
-                r0, r1, r2 = self._prior_floats
-                exact = (gamma - self._gamma[-1]) / ds
-                self._grade_errors.append(
-                    abs(exact - 0.5 * (g + self._g[-1])) / max(r0 + (r1 + r2 * v_mid) * v_mid, 1e-6)
-                )
-                self._grade_seen += 1
-        self._t.append(t)
-        self._v.append(v)
+                if n >= 3 and runs[-3] == run_id and v2 > 5.0:
+                    self._d3.append(v - 3.0 * v1 + 3.0 * v2 - vs[-3])
+            gamma1 = self._gamma[-1]
+            if same_run and math.isfinite(gamma) and math.isfinite(gamma1):
+                ds = s - self._s[-1]
+                if ds > 1.0 and v >= v_min and v1 >= v_min:
+                    v_mid = 0.5 * (v + v1)
+                    r0, r1, r2 = self._prior_floats
+                    exact = (gamma - gamma1) / ds
+                    self._grade_errors.append(
+                        abs(exact - 0.5 * (g + self._g[-1])) / max(r0 + (r1 + r2 * v_mid) * v_mid, 1e-6)
+                    )
+                    self._grade_seen += 1
+            self._period = t - ts[-1]
+            self._refresh_wait = max(self.REFRESH, self.REFRESH_PERIODS * self._period)
+        ts.append(t)
+        vs.append(v)
         self._g.append(g)
         self._tun.append(tunnel if math.isfinite(tunnel) else 0.0)
-        self._run.append(int(run_id))
+        runs.append(int(run_id))
         self._power.append(int(power))
         self._s.append(s)
         self._gamma.append(gamma)
         self._s_var.append(s_var if math.isfinite(s_var) else 0.0)
         self._v_var.append(v_var)
-        self._v_max = max(self._v_max, v)
-        if len(self._t) >= 2:
-            self._period = self._t[-1] - self._t[-2]
-        moving = v >= self.settings.coast_min_speed
+        if v > self._v_max:
+            self._v_max = v
+        moving = v >= v_min
         stopped = self._moving_before and not moving  # the first slow sample after moving: a coast before is over
         self._moving_before = moving
-        self._moved = self._moved or moving
-        if not stopped and t - self._last_detect < max(self.REFRESH, self.REFRESH_PERIODS * self._period):
+        if moving:
+            self._moved = True
+        if not stopped and t - self._last_detect < self._refresh_wait:
             return False
         self._last_detect = t
         if not self._moved and not self._open:  # standing since the last detection: nothing can have changed
