@@ -489,7 +489,8 @@ class CoastRegression:
 
     def grade_error(self) -> float:
         """coast_energy.step_grade_error over the moving steps seen (the latest NOISE_SAMPLES)."""
-        return float(np.median(self._grade_errors)) if self._grade_errors else 0.0
+        errors = self._grade_errors
+        return median(np.fromiter(errors, float, len(errors))) if errors else 0.0
 
     def _grade_error_cached(self) -> float:
         """grade_error, recomputed after every 16 new steps (the detection asks at every pass)."""
@@ -604,16 +605,17 @@ class CoastRegression:
         period = _period(arr.t)
         if period >= cfg.coast_energy_period:  # the energy form's columns only where it may apply
             arr.s, arr.gamma = np.asarray(self._s), np.asarray(self._gamma)
-            arr.s_var, arr.v_var = np.asarray(self._s_var), np.asarray(self._v_var)
             if uses_energy_form(arr, cfg, period, self._grade_error_cached()):
+                arr.s_var, arr.v_var = np.asarray(self._s_var), np.asarray(self._v_var)
                 return self._detect_energy(arr, sv, period)
         self.window = window = slope_window(cfg, sv, period, self.prior, self._v_max)
         by_speed, by_power = candidate_steps(arr, cfg, self.prior, sv, window, period)
         step = by_speed | by_power
         trim = 0.5 * window
         bounds = bounds_of(arr, by_speed, by_power, cfg, window, period)
-        horizon = arr.t[-1] - 0.5 * window - trim  # older samples serve no stretch still open
-        decided = arr.t[-1] - 0.5 * window - period
+        t_last = float(arr.t[-1])
+        horizon = t_last - 0.5 * window - trim  # older samples serve no stretch still open
+        decided = t_last - 0.5 * window - period
         pieces = self._new_pieces(arr, bounds, decided, max(cfg.coast_min_duration, 3.0 * period))
         make = [stretch_equations(arr, k0, k1, cfg, self.prior, sv, self.tunnel_factor) for k0, k1 in pieces]
         return self._add(arr, pieces, make, step, window, horizon)
@@ -671,9 +673,9 @@ class CoastRegression:
         late = idx[arr.t[idx] > horizon] if idx.size else idx
         self._open = bool(late.size)
         if late.size:
-            i = int(late[0])
-            while i > 0 and step[i - 1]:
-                i -= 1
+            # the candidate run holding late[0] starts after the last sample before it that is not a candidate
+            before = (~step[: int(late[0])]).nonzero()[0]
+            i = int(before[-1]) + 1 if before.size else 0
             keep_t = min(keep_t, float(arr.t[i - 1]) - window if i > 0 else float(arr.t[0]))
         self._keep_from(int(arr.t.searchsorted(keep_t)))
         return changed
