@@ -71,6 +71,8 @@ from .records import (
     EstimateSample,
 )
 from .safeguards import SafeguardConfig
+from .ukf_fast import common_step
+from .ukf_fast import eligible as common_eligible
 
 _NONNEG = (1, 2, 3, 4)  # v, r0, r1, r2
 # inputs beyond these are not measurements of a train (a corrupt message): rejected or repaired, never used
@@ -322,6 +324,7 @@ class ResistanceEstimator:
         )
         self._nis_limit = _nis_limits(cfg.nis_quantile, cfg.nis_window)
         self._nis_window = cfg.nis_window
+        self._common = common_eligible(self)  # the common step by ukf_fast.common_step
         self._gate = _chi2_quantile(cfg.known_effort_gate, 1) if cfg.known_effort_gate < 1.0 else math.inf
         self._position_gate = _chi2_quantile(guard.position_gate, 1) if guard.position_gate < 1.0 else math.inf
         self._relock_ns = int(guard.gate_relock_time * 1e9)
@@ -659,6 +662,10 @@ class ResistanceEstimator:
         t = m.stamp_ns * 1e-9
         a_obs = self._slope.push(t, m.v)
         rs, rv = (m.s_variance, m.v_variance) if cfg.use_measurement_variance else (self._rs, self._rv)
+        if self._common and dt > 0.0:  # the fast path of the common step (ukf_fast); None: this chain
+            common = common_step(self, m, dt, a_obs, rs, rv)
+            if common is not None:
+                return self._common_result(m, dt, a_obs, *common)
         if dt > 0.0:
             eff = self._predict_published(m, dt, a_obs, rv)
         else:
@@ -678,6 +685,18 @@ class ResistanceEstimator:
                                self.counters["updates"], used_coast)  # fmt: skip
             health = worse(health, self._look_ahead(step))
         return self._result(eff, m.track_force, nis, health, dt)
+
+    def _common_result(self, m: StepInput, dt: float, a_obs: float, effort: float, u: float, nis: float) -> StepResult:
+        """The rest of ``_step`` after ukf_fast.common_step: the NIS window (``_safeguard``'s tail), the measurement
+        remembered, the published estimate (``_result`` of a computed effort, r at its mean)."""
+        health, nis, _ = self._nis_rule(m.s, m.v, HEALTH_OK, nis, 2)
+        self._remember(m)
+        h = self._h
+        x = h.x
+        vf = x[1]
+        resistance = running_resistance(x[2], x[3], x[4], vf)
+        return StepResult(x[0], vf, x[2], x[3], x[4], effort, a_obs, resistance, m.track_force, nis, EFFORT_COMPUTED,
+                          health, dt, u, True, h.P)  # fmt: skip
 
     def _predict_published(self, m: StepInput, dt: float, a_obs: float, rv: float) -> _Effort:
         """The applied effort of the step and the prediction of the published filter with it: the effort computed
@@ -778,6 +797,11 @@ class ResistanceEstimator:
             flag = self._project_and_check(h, zs, zv)
             if flag != HEALTH_OK:
                 health = flag
+        return self._nis_rule(zs, zv, health, nis, dof)
+
+    def _nis_rule(self, zs: float, zv: float, health: int, nis: float, dof: int) -> tuple[int, float, bool]:
+        """The NIS window after the update: DEGRADED while it is inconsistent, the NIS reset after
+        ``nis_reset_windows`` windows of it. Returns (health, NIS, NIS reset)."""
         nis_reset = False
         if self._nis_push(nis, dof):
             self._degraded_steps += 1
