@@ -76,8 +76,8 @@ def uses_energy_form(arr: RunArrays, settings: CoastSettings, period: float, gra
         and arr.gamma is not None
         and arr.power is None
         and arr.t.size >= 3
-        and bool(np.all(np.isfinite(arr.gamma)))
-        and bool(np.all(np.isfinite(arr.s)))
+        and bool(np.isfinite(arr.gamma).all())
+        and bool(np.isfinite(arr.s).all())
         and grade_error >= settings.coast_energy_grade_error
     )
 

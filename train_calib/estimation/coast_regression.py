@@ -69,11 +69,25 @@ def prior_covariance(davis: Davis | tuple[float, float, float], scale_std: float
     return scale_std**2 * np.outer(r, r) + np.diag(np.maximum(coefficient_std * np.abs(r), floor) ** 2)
 
 
+def median(x: np.ndarray) -> float:
+    """``float(np.median(x))`` of a non-empty 1-D float array without np.median's generic machinery (a third of
+    its cost on the speed-noise estimate's thousand differences): the same partition, the middle value or the two
+    middle ones' mean as np.mean computes it, NaN when the array holds one."""
+    n = x.size
+    h = n // 2
+    even = n % 2 == 0
+    part = np.partition(x, [h - 1, h, -1] if even else [h, -1])
+    if math.isnan(part[-1]):
+        return math.nan
+    # np.mean's sum starts from 0.0 (a -0.0 median reads 0.0)
+    return float((0.0 + part[h - 1] + part[h]) / 2.0) if even else float(0.0 + part[h])
+
+
 def noise_from_differences(d2: np.ndarray, d3: np.ndarray, quantum: float) -> float:
     """Speed noise std (m/s) from second and third differences of the moving speeds: the smaller of their MADs
     (scaled by sqrt(6), sqrt(20)) -- a changing acceleration inflates the second differences at 10 s sampling, the
     third cancel a steady change -- and at least the resolution / sqrt(12)."""
-    mads = [float(np.median(np.abs(d))) / 0.6745 / math.sqrt(c) for d, c in ((d2, 6.0), (d3, 20.0)) if d.size]
+    mads = [median(np.abs(d)) / 0.6745 / math.sqrt(c) for d, c in ((d2, 6.0), (d3, 20.0)) if d.size]
     robust = min(mads) if mads else 0.0
     return max(robust, quantum / math.sqrt(12.0), _MIN_SPEED_NOISE)
 
@@ -103,29 +117,28 @@ def local_slopes(
     slope's standard error per unit of speed noise); NaN where the window holds < 3 samples or its samples span
     less than min(0.8 W, W - 1.5 period) (a hole in the speeds, or the end of the data)."""
     n = t.size
-    a = np.full(n, np.nan)
-    se = np.full(n, np.nan)
     if n < 3:
-        return a, se
-    # a run's samples are contiguous: bound the window inside the run with the run's own index range
-    key = run.astype(float) * 1e7 + (t - t[0])  # runs are ordered in time; 1e7 s separates them
-    lo = np.searchsorted(key, key - 0.5 * window - 1e-6, side="left")
-    hi = np.searchsorted(key, key + 0.5 * window + 1e-6, side="right") - 1
+        return np.full(n, np.nan), np.full(n, np.nan)
     tc = t - t[0]
-    c1 = np.concatenate(([0.0], np.cumsum(tc)))
-    c2 = np.concatenate(([0.0], np.cumsum(tc * tc)))
-    cv = np.concatenate(([0.0], np.cumsum(v)))
-    ctv = np.concatenate(([0.0], np.cumsum(tc * v)))
+    # a run's samples are contiguous: bound the window inside the run with the run's own index range
+    key = run.astype(float) * 1e7 + tc  # runs are ordered in time; 1e7 s separates them
+    lo = key.searchsorted(key - 0.5 * window - 1e-6, side="left")
+    hi = key.searchsorted(key + 0.5 * window + 1e-6, side="right") - 1
+    # prefix sums of (t, t^2, v, t v) from 0, one column each (a column's cumsum is the 1-D one, the same numbers)
+    sums = np.empty((n + 1, 4))
+    sums[0] = 0.0
+    sums[1:, 0] = tc
+    sums[1:, 1] = tc * tc
+    sums[1:, 2] = v
+    sums[1:, 3] = tc * v
+    sums = sums.cumsum(axis=0)
+    st, stt, sv, stv = (sums.take(hi + 1, 0) - sums.take(lo, 0)).T  # take: sums[hi + 1] - sums[lo], faster
     cnt = (hi - lo + 1).astype(float)
-    st = c1[hi + 1] - c1[lo]
-    stt = c2[hi + 1] - c2[lo]
-    sv = cv[hi + 1] - cv[lo]
-    stv = ctv[hi + 1] - ctv[lo]
     sxx = stt - st * st / np.maximum(cnt, 1.0)
-    ok = (cnt >= 3) & (tc[hi] - tc[lo] >= min(0.8 * window, window - 1.5 * period)) & (sxx > 0.0)
-    a[ok] = (stv[ok] - st[ok] * sv[ok] / cnt[ok]) / sxx[ok]
-    se[ok] = 1.0 / np.sqrt(sxx[ok])
-    return a, se
+    ok = (cnt >= 3) & (tc.take(hi) - tc.take(lo) >= min(0.8 * window, window - 1.5 * period)) & (sxx > 0.0)
+    a = np.divide(stv - st * sv / cnt, sxx, out=np.full(n, np.nan), where=ok)
+    se = np.sqrt(sxx, out=np.full(n, np.nan), where=ok)
+    return a, np.divide(1.0, se, out=se, where=ok)
 
 
 @dataclass
@@ -169,7 +182,7 @@ def slope_window(settings: CoastSettings, sigma_v: float, period: float, prior: 
     r_ref = max(float(davis_value(prior, 0.5 * v_max)), 1e-4)
     w = (sigma_v * sigma_v * 12.0 * period / (settings.coast_slope_precision * r_ref) ** 2) ** (1.0 / 3.0)
     lower = max(settings.coast_window_min, settings.coast_window_samples * period)
-    return float(np.clip(w, lower, max(lower, 90.0)))
+    return float(min(max(w, lower), max(lower, 90.0)))  # np.clip's numbers on scalars
 
 
 def candidate_steps(
@@ -180,10 +193,11 @@ def candidate_steps(
     steps: samples whose power shows neither traction nor regeneration (``power_decides``), with the apparent
     resistance not beyond 1.6 coast_ratio_max (a brake without electric braking). Samples whose power shows
     traction or electric braking are never candidates."""
-    a, se = local_slopes(arr.t, arr.v, arr.run, window, period)
+    t, v = arr.t, arr.v
+    a, se = local_slopes(t, v, arr.run, window, period)
     with np.errstate(invalid="ignore", divide="ignore"):
-        ratio = -(a + arr.g) / np.maximum(davis_value(prior, arr.v), 1e-6)
-        moving = arr.v >= settings.coast_min_speed
+        ratio = -(a + arr.g) / np.maximum(davis_value(prior, v), 1e-6)
+        moving = v >= settings.coast_min_speed
         by_speed = (
             (ratio >= settings.coast_ratio_min)
             & (ratio <= settings.coast_ratio_max)
@@ -191,17 +205,20 @@ def candidate_steps(
             & moving
             & np.isfinite(a)
         )
-        by_power = np.zeros_like(by_speed)
+        by_power = None  # no power measured: no power steps
         if arr.power is not None and settings.power_decides:
             known = arr.power != POWER_UNKNOWN
             by_speed &= ~known
             by_power = (arr.power == POWER_NONE) & moving & ~(ratio > 1.6 * settings.coast_ratio_max)
+    n = t.size
+    joint = None  # per step i >= 1: samples i-1 and i in the same run, no gap between them
+    if n > 1:
+        joint = (arr.run[1:] == arr.run[:-1]) & (t[1:] - t[:-1] <= min(settings.max_gap, 2.5 * period))
     steps = []
     for cand in (by_speed, by_power):
-        step = np.zeros(arr.t.size, dtype=bool)
-        if arr.t.size > 1:
-            gap = min(settings.max_gap, 2.5 * period)
-            step[1:] = cand[1:] & cand[:-1] & (arr.run[1:] == arr.run[:-1]) & (np.diff(arr.t) <= gap)
+        step = np.zeros(n, dtype=bool)
+        if joint is not None and cand is not None:
+            step[1:] = cand[1:] & cand[:-1] & joint
         steps.append(step)
     return steps[0], steps[1]
 
@@ -212,17 +229,18 @@ def stretch_bounds(
     """(k0, k1, i, j) per stretch: samples k0..k1 after trimming; candidate steps i..j (untrimmed)."""
     t = arr.t
     out = []
-    idx = np.flatnonzero(step)
+    idx = step.nonzero()[0]
     if idx.size == 0:
         return out
-    breaks = np.flatnonzero(np.diff(idx) > 1)
-    starts = np.concatenate(([idx[0]], idx[breaks + 1]))
-    ends = np.concatenate((idx[breaks], [idx[-1]]))
+    breaks = ((idx[1:] - idx[:-1]) > 1).nonzero()[0]
+    starts = [int(idx[0]), *idx[breaks + 1].tolist()]
+    ends = [*idx[breaks].tolist(), int(idx[-1])]
+    tl = t.tolist()
     for i, j in zip(starts, ends):
-        k0 = int(np.searchsorted(t, t[i - 1] + trim - 1e-6))
-        k1 = int(np.searchsorted(t, t[j] - trim + 1e-6)) - 1
-        if k1 > k0 and t[k1] - t[k0] >= min_duration:
-            out.append((k0, k1, int(i), int(j)))
+        k0 = int(t.searchsorted(tl[i - 1] + trim - 1e-6))
+        k1 = int(t.searchsorted(tl[j] - trim + 1e-6)) - 1
+        if k1 > k0 and tl[k1] - tl[k0] >= min_duration:
+            out.append((k0, k1, i, j))
     return out
 
 
@@ -325,7 +343,8 @@ def nonnegative(r: np.ndarray, cov: np.ndarray) -> np.ndarray:
 def _period(t: np.ndarray) -> float:
     """Median sample interval (s) of the rising stamps; 1 s without one. The median of a Python sort (the same
     value as numpy's median, at a tenth of its cost on the few dozen samples a causal detection holds)."""
-    d = sorted(x for x in np.diff(t).tolist() if x > 0.0)
+    d = t[1:] - t[:-1]
+    d = sorted(d[d > 0.0].tolist())
     n = len(d)
     if not n:
         return 1.0
@@ -458,6 +477,8 @@ class CoastRegression:
         self._d2_seen = 0
         self._sv, self._sv_at = math.nan, 0
         self._period = math.nan  # s, the latest sample interval
+        self._refresh_wait = float(self.REFRESH)  # s between detections: max(REFRESH, REFRESH_PERIODS * _period)
+        self._v_min = settings.coast_min_speed  # m/s
         self._moved = False  # a moving sample since the last detection
         self._moving_before = False  # the previous sample was moving
         self._open = False  # the last detection left a candidate run open
@@ -468,7 +489,8 @@ class CoastRegression:
 
     def grade_error(self) -> float:
         """coast_energy.step_grade_error over the moving steps seen (the latest NOISE_SAMPLES)."""
-        return float(np.median(self._grade_errors)) if self._grade_errors else 0.0
+        errors = self._grade_errors
+        return median(np.fromiter(errors, float, len(errors))) if errors else 0.0
 
     def _grade_error_cached(self) -> float:
         """grade_error, recomputed after every 16 new steps (the detection asks at every pass)."""
@@ -487,7 +509,8 @@ class CoastRegression:
         q = self._quantum if math.isfinite(self._quantum) else 0.0
         if not (self._d2 or q):
             return 0.08
-        return noise_from_differences(np.asarray(self._d2), np.asarray(self._d3), q)
+        d2, d3 = self._d2, self._d3
+        return noise_from_differences(np.fromiter(d2, float, len(d2)), np.fromiter(d3, float, len(d3)), q)
 
     def push(
         self,
@@ -506,49 +529,58 @@ class CoastRegression:
         in J/kg, s_var m^2 and v_var (m/s)^2 for the energy form); True when r or its covariance changed."""
         if not (math.isfinite(t) and math.isfinite(v) and math.isfinite(g)):
             return False
-        if self._t and t <= self._t[-1]:
-            if run_id == self._run[-1]:
+        ts, vs, runs = self._t, self._v, self._run
+        n = len(ts)
+        if n and t <= ts[-1]:
+            if run_id == runs[-1]:
                 return False  # an older or repeated stamp within the run: not a measurement to use
-            self._keep_from(len(self._t))  # a new run on a new time base (clock reset): what was learnt stays
+            self._keep_from(n)  # a new run on a new time base (clock reset): what was learnt stays
             self._used_until = self._last_detect = -math.inf
-        if self._v:
-            dv = abs(v - self._v[-1])
+            n = 0
+        v_min = self._v_min
+        if n:  # the noise and grade-error terms of the step from the previous sample
+            v1 = vs[-1]
+            same_run = runs[-1] == run_id
+            dv = abs(v - v1)
             if dv > 1e-4:
                 self._quantum = min(self._quantum, dv)
-            if len(self._v) >= 2 and self._v[-1] > 5.0 and self._run[-1] == run_id == self._run[-2]:
-                self._d2.append(v - 2.0 * self._v[-1] + self._v[-2])
+            if n >= 2 and v1 > 5.0 and same_run and run_id == runs[-2]:
+                v2 = vs[-2]
+                self._d2.append(v - 2.0 * v1 + v2)
                 self._d2_seen += 1
-                if len(self._v) >= 3 and self._run[-3] == run_id and self._v[-2] > 5.0:
-                    self._d3.append(v - 3.0 * self._v[-1] + 3.0 * self._v[-2] - self._v[-3])
-        if self._s and self._v and self._run[-1] == run_id and math.isfinite(gamma) and math.isfinite(self._gamma[-1]):
-            ds = s - self._s[-1]
-            v_min = self.settings.coast_min_speed
-            if ds > 1.0 and v >= v_min and self._v[-1] >= v_min:
-                v_mid = 0.5 * (v + self._v[-1])
-                r0, r1, r2 = self._prior_floats
-                exact = (gamma - self._gamma[-1]) / ds
-                self._grade_errors.append(
-                    abs(exact - 0.5 * (g + self._g[-1])) / max(r0 + (r1 + r2 * v_mid) * v_mid, 1e-6)
-                )
-                self._grade_seen += 1
-        self._t.append(t)
-        self._v.append(v)
+                if n >= 3 and runs[-3] == run_id and v2 > 5.0:
+                    self._d3.append(v - 3.0 * v1 + 3.0 * v2 - vs[-3])
+            gamma1 = self._gamma[-1]
+            if same_run and math.isfinite(gamma) and math.isfinite(gamma1):
+                ds = s - self._s[-1]
+                if ds > 1.0 and v >= v_min and v1 >= v_min:
+                    v_mid = 0.5 * (v + v1)
+                    r0, r1, r2 = self._prior_floats
+                    exact = (gamma - gamma1) / ds
+                    self._grade_errors.append(
+                        abs(exact - 0.5 * (g + self._g[-1])) / max(r0 + (r1 + r2 * v_mid) * v_mid, 1e-6)
+                    )
+                    self._grade_seen += 1
+            self._period = t - ts[-1]
+            self._refresh_wait = max(self.REFRESH, self.REFRESH_PERIODS * self._period)
+        ts.append(t)
+        vs.append(v)
         self._g.append(g)
         self._tun.append(tunnel if math.isfinite(tunnel) else 0.0)
-        self._run.append(int(run_id))
+        runs.append(int(run_id))
         self._power.append(int(power))
         self._s.append(s)
         self._gamma.append(gamma)
         self._s_var.append(s_var if math.isfinite(s_var) else 0.0)
         self._v_var.append(v_var)
-        self._v_max = max(self._v_max, v)
-        if len(self._t) >= 2:
-            self._period = self._t[-1] - self._t[-2]
-        moving = v >= self.settings.coast_min_speed
+        if v > self._v_max:
+            self._v_max = v
+        moving = v >= v_min
         stopped = self._moving_before and not moving  # the first slow sample after moving: a coast before is over
         self._moving_before = moving
-        self._moved = self._moved or moving
-        if not stopped and t - self._last_detect < max(self.REFRESH, self.REFRESH_PERIODS * self._period):
+        if moving:
+            self._moved = True
+        if not stopped and t - self._last_detect < self._refresh_wait:
             return False
         self._last_detect = t
         if not self._moved and not self._open:  # standing since the last detection: nothing can have changed
@@ -558,14 +590,14 @@ class CoastRegression:
 
     def _detect(self) -> bool:
         cfg = self.settings
-        power = np.asarray(self._power, dtype=np.int8)
+        powered = self._power.count(POWER_UNKNOWN) < len(self._power)
         arr = RunArrays(
             np.asarray(self._t),
             np.asarray(self._v),
             np.asarray(self._g),
             np.asarray(self._tun),
             np.asarray(self._run, dtype=np.int64),
-            power if np.any(power != POWER_UNKNOWN) else None,
+            np.asarray(self._power, dtype=np.int8) if powered else None,
         )
         if arr.t.size < 3:
             return False
@@ -573,16 +605,17 @@ class CoastRegression:
         period = _period(arr.t)
         if period >= cfg.coast_energy_period:  # the energy form's columns only where it may apply
             arr.s, arr.gamma = np.asarray(self._s), np.asarray(self._gamma)
-            arr.s_var, arr.v_var = np.asarray(self._s_var), np.asarray(self._v_var)
             if uses_energy_form(arr, cfg, period, self._grade_error_cached()):
+                arr.s_var, arr.v_var = np.asarray(self._s_var), np.asarray(self._v_var)
                 return self._detect_energy(arr, sv, period)
         self.window = window = slope_window(cfg, sv, period, self.prior, self._v_max)
         by_speed, by_power = candidate_steps(arr, cfg, self.prior, sv, window, period)
         step = by_speed | by_power
         trim = 0.5 * window
         bounds = bounds_of(arr, by_speed, by_power, cfg, window, period)
-        horizon = arr.t[-1] - 0.5 * window - trim  # older samples serve no stretch still open
-        decided = arr.t[-1] - 0.5 * window - period
+        t_last = float(arr.t[-1])
+        horizon = t_last - 0.5 * window - trim  # older samples serve no stretch still open
+        decided = t_last - 0.5 * window - period
         pieces = self._new_pieces(arr, bounds, decided, max(cfg.coast_min_duration, 3.0 * period))
         make = [stretch_equations(arr, k0, k1, cfg, self.prior, sv, self.tunnel_factor) for k0, k1 in pieces]
         return self._add(arr, pieces, make, step, window, horizon)
@@ -636,15 +669,15 @@ class CoastRegression:
             self._used_until = float(arr.t[pieces[-1][1]])
             changed = True
         keep_t = horizon - window
-        idx = np.flatnonzero(step)
+        idx = step.nonzero()[0]
         late = idx[arr.t[idx] > horizon] if idx.size else idx
         self._open = bool(late.size)
         if late.size:
-            i = int(late[0])
-            while i > 0 and step[i - 1]:
-                i -= 1
+            # the candidate run holding late[0] starts after the last sample before it that is not a candidate
+            before = (~step[: int(late[0])]).nonzero()[0]
+            i = int(before[-1]) + 1 if before.size else 0
             keep_t = min(keep_t, float(arr.t[i - 1]) - window if i > 0 else float(arr.t[0]))
-        self._keep_from(int(np.searchsorted(arr.t, keep_t)))
+        self._keep_from(int(arr.t.searchsorted(keep_t)))
         return changed
 
     def _posterior(self) -> tuple[np.ndarray, np.ndarray]:

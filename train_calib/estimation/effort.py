@@ -49,22 +49,20 @@ class SpeedSlope:
         if not pts:
             self._t_ref = t
         pts.append((t, v))
-        d = t - self._t_ref
-        self._st += d
-        self._sv += v
-        self._stt += d * d
-        self._stv += d * v
-        self._svv += v * v
-        limit = t - 1.02 * self.window - 1e-6  # 2 % tolerance for stamp jitter
         t_ref = self._t_ref
+        d = t - t_ref
+        # the running sums in locals, stored once (the same additions in the same order)
+        st, sv, stt, stv, svv = self._st + d, self._sv + v, self._stt + d * d, self._stv + d * v, self._svv + v * v
+        limit = t - 1.02 * self.window - 1e-6  # 2 % tolerance for stamp jitter
         while len(pts) > 2 and pts[0][0] < limit:
             t0, v0 = pts.popleft()
             d = t0 - t_ref
-            self._st -= d
-            self._sv -= v0
-            self._stt -= d * d
-            self._stv -= d * v0
-            self._svv -= v0 * v0
+            st -= d
+            sv -= v0
+            stt -= d * d
+            stv -= d * v0
+            svv -= v0 * v0
+        self._st, self._sv, self._stt, self._stv, self._svv = st, sv, stt, stv, svv
         self._count += 1
         if self._count >= self._REFRESH:
             self._refresh()
