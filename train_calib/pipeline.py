@@ -215,7 +215,9 @@ class Pipeline:
     a WindowConfig, or False (the graph without window_calib_node). It yields results only for measurements that
     carry traction power, so with the default the pipeline equals the replay's graph, which starts
     window_calib_node when the bag has /train/traction_power. ``feature_changes`` False: features only at the end
-    of each run (``FeatureStream.on_change``), as a fleet row needs them.
+    of each run (``FeatureStream.on_change``), as a fleet row needs them. ``regime_labels`` False: the regime
+    records carry the phase as their regime too (with ``imm``, its ``hmm`` runs alone: the same phases, so the same
+    features and windows), for a caller that reads no regime (a fleet row).
     """
 
     def __init__(
@@ -231,9 +233,13 @@ class Pipeline:
         safeguards: SafeguardConfig | None = None,
         window: WindowConfig | bool = True,
         feature_changes: bool = True,
+        regime_labels: bool = True,
     ) -> None:
         self.ingest = Ingest(track, train, ingest) if track is not None else None
         self.estimator = ResistanceEstimator(train, ukf, initial, safeguards)
+        regime = regime if regime is not None else RegimeConfig()
+        if not regime_labels and regime.method == "imm":  # the phase alone: the imm's hmm, without the imm
+            regime = replace(regime, method="hmm")
         self.regimes = RegimeStream(regime)
         self._power = PowerEffort(train)  # the traction power's state for the regimes
         self.features = FeatureStream(features, feature_changes)

@@ -1,6 +1,6 @@
 """The fleet row's own choices leave it equal to the full chain's: the sliding-window calibration (not run for a
-row) feeds nothing the row reads, and the features snapshot at each regime change (not made for a row) change
-nothing of the closing ones."""
+row) feeds nothing the row reads, the features snapshot at each regime change (not made for a row) change
+nothing of the closing ones, and the per-sample regimes (the imm, not run for a row) nothing of the phases."""
 
 from __future__ import annotations
 
@@ -35,7 +35,9 @@ def test_row_equals_the_full_chain(monkeypatch, name: str, line: str, unit: str)
 
     def full_chain(*args, **configs):
         assert configs.pop("window") is False and configs.pop("feature_changes") is False
+        assert configs.pop("regime_labels") is False
         out = run_bag(*args, **configs)
+        assert any(r.regime != r.phase for r in out.regimes)  # the imm ran: labels of its own
         windows.append(len(out.windows))
         snapshots.append(len(out.features))
         return out

@@ -176,8 +176,10 @@ def run_result(bag: str, track_path: str, train_path: str, configs: dict[str, An
     train = _cached("train", train_path)
     # the sliding-window calibration (window_calib_node) feeds nothing else and has no column in the row: not run
     # (a 1 Hz run with traction power: 300 -> 240 ms); the features of each regime change are not snapshot, the
-    # row takes each run's closing ones (10 s run: 32 -> 29 ms). The row is the same (test_fleet_row).
-    out = run_bag(bag, track, train, **{**(configs or {}), "window": False, "feature_changes": False})
+    # row takes each run's closing ones (10 s run: 32 -> 29 ms); the per-sample regimes (the imm) are not labelled,
+    # the features take the phase (1 Hz run: 131 -> 116 ms). The row is the same (test_fleet_row).
+    out = run_bag(bag, track, train, **{**(configs or {}), "window": False, "feature_changes": False,
+                                        "regime_labels": False})  # fmt: skip
     res: dict[str, Any] = {}
     stats = out.ingest_stats
     if stats is not None:
