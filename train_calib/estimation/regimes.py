@@ -91,6 +91,9 @@ def _log_erfc(x: float) -> float:
 
 
 def _float(x) -> float | None:
+    """x as a float; None where it is not a number."""
+    if type(x) is float:
+        return x
     try:
         return float(x)
     except (TypeError, ValueError):
@@ -111,9 +114,11 @@ class RegimeClassifier:
         "_g_prev",
         "_hmm",
         "_imm",
+        "_keep",
         "_known_log",
         "_lagged",
         "_lam",
+        "_lam_s2",
         "_log_norm",
         "_log_stay",
         "_log_switch",
@@ -121,6 +126,8 @@ class RegimeClassifier:
         "_prob",
         "_revised",
         "_sigma",
+        "_sqrt2_s",
+        "_switch",
         "_t_const",
         "_t_min",
         "_v",
@@ -147,6 +154,10 @@ class RegimeClassifier:
         p = cfg.switch_probability
         self._log_stay = math.log(1.0 - p)
         self._log_switch = math.log(p / 3.0)
+        self._switch = math.exp(self._log_switch)  # exp(log) as the filter has always computed them
+        self._keep = math.exp(self._log_stay) - self._switch
+        self._lam_s2 = lam * s * s
+        self._sqrt2_s = SQRT2 * s
         self._vc2 = cfg.resistance_shape_speed**2
         self._known_log = math.log(cfg.known_coast_odds)
         self._w_rel = cfg.resistance_rel_std
@@ -298,39 +309,46 @@ class RegimeClassifier:
         # log densities of y under each regime
         s, lam = self._sigma, self._lam
         yt = y - self._t_min
-        l_t = self._t_const - lam * yt + _log_erfc((lam * s * s - yt) / (SQRT2 * s))
+        l_t = self._t_const - lam * yt + _log_erfc((self._lam_s2 - yt) / self._sqrt2_s)
         z = y / s
         l_h = self._log_norm - 0.5 * z * z
         sc = math.hypot(s, self._w_rel * w)
         z = (y + w) / sc
-        l_c = -LOG_SQRT_2PI - math.log(sc) - 0.5 * z * z
-        lo, hi = self._b_lo, self._b_hi
-        mass = 0.5 * (math.erf((hi - y) / (SQRT2 * s)) - math.erf((lo - y) / (SQRT2 * s)))
-        if mass > 1e-300:
-            l_b = math.log(mass / (hi - lo))
-        else:  # far outside [lo, hi]: the Gaussian tail of the nearer end
-            z = min(abs(y - lo), abs(y - hi)) / s
-            l_b = self._log_norm - 0.5 * z * z - math.log(hi - lo)
+        l_c = _MINUS_LOG_SQRT_2PI - math.log(sc) - 0.5 * z * z
+        l_b = self._log_brake(y)
         if zero_known:
             l_c += self._known_log
-        logs = (l_t, l_h, l_c, l_b)
-        # predict and update
+        return self._forward(l_t, l_h, l_c, l_b)
+
+    def _log_brake(self, y: float) -> float:
+        """log density of the net acceleration y (m/s^2) under BRAKING: uniform on [lo, hi] plus the noise."""
+        lo, hi, s2 = self._b_lo, self._b_hi, self._sqrt2_s
+        mass = 0.5 * (math.erf((hi - y) / s2) - math.erf((lo - y) / s2))
+        if mass > 1e-300:
+            return math.log(mass / (hi - lo))
+        z = min(abs(y - lo), abs(y - hi)) / self._sigma  # far outside [lo, hi]: the Gaussian tail of the nearer end
+        return self._log_norm - 0.5 * z * z - math.log(hi - lo)
+
+    def _forward(self, l_t: float, l_h: float, l_c: float, l_b: float) -> int:
+        """One step of the forward filter with the log likelihoods of (TRACTION, CRUISING, COASTING, BRAKING): the
+        most probable regime; the probabilities in ``_prob`` (and ``_revised`` with ``lag_samples``)."""
         prev = self._prob
+        top = max(l_t, l_h, l_c, l_b)
+        k0, k1, k2, k3 = math.exp(l_t - top), math.exp(l_h - top), math.exp(l_c - top), math.exp(l_b - top)
         if prev is None:
-            prior = START_PRIOR
+            p0, p1, p2, p3 = START_PRIOR
         else:
-            stay, switch = math.exp(self._log_stay), math.exp(self._log_switch)
-            prior = tuple(p * (stay - switch) + switch for p in prev)
-        top = max(logs)
-        likelihood = [math.exp(lg - top) for lg in logs]
-        post = [p * lk for p, lk in zip(prior, likelihood)]
-        if prev is not None and self._lagged:  # the previous sample given this one: p_prev * (A l), A = keep I + switch
-            common = switch * sum(likelihood)
-            keep = stay - switch
-            self._revised = most_probable(*(p * (keep * lk + common) for p, lk in zip(prev, likelihood)))
-        total = post[0] + post[1] + post[2] + post[3]
-        self._prob = prob = [p / total for p in post]
-        return most_probable(*prob)
+            keep, switch = self._keep, self._switch  # P(i -> j) = keep [i == j] + switch
+            q0, q1, q2, q3 = prev
+            p0, p1, p2, p3 = q0 * keep + switch, q1 * keep + switch, q2 * keep + switch, q3 * keep + switch
+            if self._lagged:  # the previous sample given this one: p_prev * (A l), A = keep I + switch
+                common = switch * sum((k0, k1, k2, k3))
+                self._revised = most_probable(*(p * (keep * lk + common) for p, lk in zip(prev, (k0, k1, k2, k3))))
+        p0, p1, p2, p3 = p0 * k0, p1 * k1, p2 * k2, p3 * k3
+        total = p0 + p1 + p2 + p3
+        p0, p1, p2, p3 = p0 / total, p1 / total, p2 / total, p3 / total
+        self._prob = [p0, p1, p2, p3]
+        return most_probable(p0, p1, p2, p3)
 
     def _carried_w(self, v: float) -> float:
         """r + g where the effort is known: the last computed-effort value, scaled with speed."""
@@ -343,6 +361,7 @@ class RegimeClassifier:
         return w
 
 
+_MINUS_LOG_SQRT_2PI = -LOG_SQRT_2PI
 _STEP_MIN_M = 50.0
 """imm: the mean g over a step is taken over at least this distance (m); shorter (standing, noise): g at the sample."""
 _STEP_MAX_M = 2000.0
