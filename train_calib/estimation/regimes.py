@@ -92,12 +92,15 @@ def _log_erfc(x: float) -> float:
 
 def _float(x) -> float | None:
     """x as a float; None where it is not a number."""
-    if type(x) is float:
-        return x
     try:
         return float(x)
     except (TypeError, ValueError):
         return None
+
+
+def _float_or_none(x) -> float | None:
+    """An optional value as a float: None where it is None or not a number."""
+    return None if x is None else _float(x)
 
 
 class RegimeClassifier:
@@ -234,14 +237,15 @@ class RegimeClassifier:
         """
         self._revised = None
         self._phase = UNKNOWN
-        e = _float(effort)
-        a = _float(acceleration)
+        # (each value as a float: ``_float``, called only where it is not one already: this runs once a sample)
+        e = effort if type(effort) is float else _float(effort)
+        a = acceleration if type(acceleration) is float else _float(acceleration)
         if e is None or a is None or math.isnan(e) or math.isnan(a):
             return UNKNOWN
         v = math.nan
         standing = False
         if speed is not None:
-            v = _float(speed)
+            v = speed if type(speed) is float else _float(speed)
             if v is None:
                 return UNKNOWN
             standing = not v >= self._v  # NaN too
@@ -252,19 +256,19 @@ class RegimeClassifier:
         if not self._hmm or not (math.isfinite(e) and math.isfinite(a)):
             self._phase = UNKNOWN if standing else rule(e, a, self.config)
             return self._phase
-        w_given = _float(opposing_force) if opposing_force is not None else None
+        w_given = opposing_force if type(opposing_force) is float else _float_or_none(opposing_force)
         if w_given is not None and not math.isfinite(w_given):
             w_given = None
         phase = UNKNOWN if standing else self._filter(e, a, v, effort_known, w_given)
         self._phase = phase
         if self._imm is None:
             return phase
-        t = _float(time) if time is not None else None
+        t = time if type(time) is float else _float_or_none(time)
         if t is None or not math.isfinite(t) or not math.isfinite(v):
             if standing:
                 self._imm.restart()
             return phase
-        z = _float(speed_measured) if speed_measured is not None else None
+        z = speed_measured if type(speed_measured) is float else _float_or_none(speed_measured)
         if z is None or not math.isfinite(z):
             z = v
         if not z >= self._v_imm:  # standing for the imm: the measured speed (its first step, 1 km/h, is moving)
@@ -272,7 +276,7 @@ class RegimeClassifier:
             return UNKNOWN
         w_imm = w_given if w_given is not None else e - a
         g_mean = self._step_track_force(position, track_force_integral)
-        g_here = _float(track_force) if track_force is not None else None
+        g_here = track_force if type(track_force) is float else _float_or_none(track_force)
         if g_mean is not None and g_here is not None and math.isfinite(g_here):
             w_imm += g_mean - g_here
         return self._imm.step(t, z, w_imm, power)
@@ -280,8 +284,8 @@ class RegimeClassifier:
     def _step_track_force(self, position: float | None, integral: float | None) -> float | None:
         """The mean g (N/kg) over the step from the previous (s, Gamma) to this one; None where unknown or where the
         train moved less than ``_STEP_MIN_M`` or more than ``_STEP_MAX_M``."""
-        s = _float(position) if position is not None else None
-        gamma = _float(integral) if integral is not None else None
+        s = position if type(position) is float else _float_or_none(position)
+        gamma = integral if type(integral) is float else _float_or_none(integral)
         if s is None or gamma is None or not (math.isfinite(s) and math.isfinite(gamma)):
             return None
         prev, self._g_prev = self._g_prev, (s, gamma)
