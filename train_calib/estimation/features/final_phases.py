@@ -205,11 +205,7 @@ class FinalPhases:
             return ph.bounds(self.refine) if ph is not None else (_NAN, _NAN)
         cfg = self.cfg
         for ph in reversed(self._coasts):
-            tail = ph.tail
-            if ph.end is not None:  # the samples labelled coasting after its located end are the next phase's
-                t_end = ph.end.time(True)
-                tail = [p for p in tail if p.t <= t_end]
-            t_hold = hold_tail(tail, ph.w_last, cfg.hold_check_min)
+            t_hold = self._hold_start(ph)
             if t_hold is None:
                 return ph.bounds(True)
             t0, s0 = ph.start_point(True)
@@ -217,3 +213,19 @@ class FinalPhases:
                 ts = [p.t for p in ph.tail]
                 return t_hold - t0, float(np.interp(t_hold, ts, [p.s for p in ph.tail])) - s0
         return _NAN, _NAN
+
+    def _hold_start(self, ph: Phase) -> float | None:
+        """``hold_tail`` of a coasting phase up to its located end (s), remembered while its tail (the same first and
+        last point objects and length: points are only appended and dropped from the front), w and end stay; a
+        feature snapshot at every change of regime asks again for the same coasts."""
+        tail, w = ph.tail, ph.w_last
+        t_end = ph.end.time(True) if ph.end is not None else None
+        first, last = (tail[0], tail[-1]) if tail else (None, None)
+        memo = ph.hold_memo  # (length, first point, last point, w, t_end, the result); a NaN w is never equal
+        same_tail = memo is not None and memo[0] == len(tail) and memo[1] is first and memo[2] is last
+        if same_tail and memo[3] == w and memo[4] == t_end:  # type: ignore[index]
+            return memo[5]  # type: ignore[index]
+        points = tail if t_end is None else [p for p in tail if p.t <= t_end]  # after the end: the next phase's
+        t_hold = hold_tail(points, w, self.cfg.hold_check_min)
+        ph.hold_memo = (len(tail), first, last, w, t_end, t_hold)
+        return t_hold

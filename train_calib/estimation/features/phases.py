@@ -37,7 +37,7 @@ class Phase:
     """A (merged) phase of one regime: start and end changes, the time labelled with the regime; for coasting the
     samples of its last ``hold_check_window`` seconds (``TailPoint``) and the last r + g (N/kg)."""
 
-    __slots__ = ("end", "first_s", "first_t", "labelled", "last_s", "last_t", "start", "tail", "w_last")
+    __slots__ = ("end", "first_s", "first_t", "hold_memo", "labelled", "last_s", "last_t", "start", "tail", "w_last")
 
     def __init__(self, start: Change | None, t0: float, s0: float) -> None:
         self.start, self.end = start, None
@@ -46,6 +46,7 @@ class Phase:
         self.labelled = 0.0
         self.tail: deque[TailPoint] = deque()
         self.w_last = _NAN
+        self.hold_memo: tuple | None = None  # FinalPhases._hold_start's last question and answer
 
     def start_point(self, refine: bool) -> tuple[float, float]:
         """(t s, s m) where the phase starts."""
