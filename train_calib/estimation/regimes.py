@@ -75,32 +75,14 @@ from .regime_model import (  # noqa: F401 (POWER_* re-exported)
     POWER_TRACTION,
     SQRT2,
     START_PRIOR,
+    log_erfc,
     most_probable,
     power_state,
     rule,
+    to_float,
+    to_float_or_none,
 )
 from .regimes_batch import classify_hmm
-
-
-def _log_erfc(x: float) -> float:
-    """log(erfc(x)); the asymptotic series where erfc underflows."""
-    if x < 5.0:
-        return math.log(math.erfc(x))
-    x2 = x * x
-    return -x2 - math.log(x * math.sqrt(math.pi)) + math.log1p(-0.5 / x2 + 0.75 / (x2 * x2))
-
-
-def _float(x) -> float | None:
-    """x as a float; None where it is not a number."""
-    try:
-        return float(x)
-    except (TypeError, ValueError):
-        return None
-
-
-def _float_or_none(x) -> float | None:
-    """An optional value as a float: None where it is None or not a number."""
-    return None if x is None else _float(x)
 
 
 class RegimeClassifier:
@@ -237,15 +219,15 @@ class RegimeClassifier:
         """
         self._revised = None
         self._phase = UNKNOWN
-        # (each value as a float: ``_float``, called only where it is not one already: this runs once a sample)
-        e = effort if type(effort) is float else _float(effort)
-        a = acceleration if type(acceleration) is float else _float(acceleration)
+        # (each value as a float: ``to_float``, called only where it is not one already: this runs once a sample)
+        e = effort if type(effort) is float else to_float(effort)
+        a = acceleration if type(acceleration) is float else to_float(acceleration)
         if e is None or a is None or math.isnan(e) or math.isnan(a):
             return UNKNOWN
         v = math.nan
         standing = False
         if speed is not None:
-            v = speed if type(speed) is float else _float(speed)
+            v = speed if type(speed) is float else to_float(speed)
             if v is None:
                 return UNKNOWN
             standing = not v >= self._v  # NaN too
@@ -256,19 +238,19 @@ class RegimeClassifier:
         if not self._hmm or not (math.isfinite(e) and math.isfinite(a)):
             self._phase = UNKNOWN if standing else rule(e, a, self.config)
             return self._phase
-        w_given = opposing_force if type(opposing_force) is float else _float_or_none(opposing_force)
+        w_given = opposing_force if type(opposing_force) is float else to_float_or_none(opposing_force)
         if w_given is not None and not math.isfinite(w_given):
             w_given = None
         phase = UNKNOWN if standing else self._filter(e, a, v, effort_known, w_given)
         self._phase = phase
         if self._imm is None:
             return phase
-        t = time if type(time) is float else _float_or_none(time)
+        t = time if type(time) is float else to_float_or_none(time)
         if t is None or not math.isfinite(t) or not math.isfinite(v):
             if standing:
                 self._imm.restart()
             return phase
-        z = speed_measured if type(speed_measured) is float else _float_or_none(speed_measured)
+        z = speed_measured if type(speed_measured) is float else to_float_or_none(speed_measured)
         if z is None or not math.isfinite(z):
             z = v
         if not z >= self._v_imm:  # standing for the imm: the measured speed (its first step, 1 km/h, is moving)
@@ -276,7 +258,7 @@ class RegimeClassifier:
             return UNKNOWN
         w_imm = w_given if w_given is not None else e - a
         g_mean = self._step_track_force(position, track_force_integral)
-        g_here = track_force if type(track_force) is float else _float_or_none(track_force)
+        g_here = track_force if type(track_force) is float else to_float_or_none(track_force)
         if g_mean is not None and g_here is not None and math.isfinite(g_here):
             w_imm += g_mean - g_here
         return self._imm.step(t, z, w_imm, power)
@@ -284,8 +266,8 @@ class RegimeClassifier:
     def _step_track_force(self, position: float | None, integral: float | None) -> float | None:
         """The mean g (N/kg) over the step from the previous (s, Gamma) to this one; None where unknown or where the
         train moved less than ``_STEP_MIN_M`` or more than ``_STEP_MAX_M``."""
-        s = position if type(position) is float else _float_or_none(position)
-        gamma = integral if type(integral) is float else _float_or_none(integral)
+        s = position if type(position) is float else to_float_or_none(position)
+        gamma = integral if type(integral) is float else to_float_or_none(integral)
         if s is None or gamma is None or not (math.isfinite(s) and math.isfinite(gamma)):
             return None
         prev, self._g_prev = self._g_prev, (s, gamma)
@@ -313,7 +295,7 @@ class RegimeClassifier:
         # log densities of y under each regime
         s, lam = self._sigma, self._lam
         yt = y - self._t_min
-        l_t = self._t_const - lam * yt + _log_erfc((self._lam_s2 - yt) / self._sqrt2_s)
+        l_t = self._t_const - lam * yt + log_erfc((self._lam_s2 - yt) / self._sqrt2_s)
         z = y / s
         l_h = self._log_norm - 0.5 * z * z
         sc = math.hypot(s, self._w_rel * w)
