@@ -48,9 +48,9 @@ from .window import WindowCalibrator, WindowConfig, WindowFit
 from .window.pooled import pooled_summary
 
 
-@dataclass
+@dataclass(slots=True)
 class RegimeRecord:
-    """One /train_calib/regime message (DrivingRegime.msg fields, SI units)."""
+    """One /train_calib/regime message (DrivingRegime.msg fields, SI units); slots: one is made per sample."""
 
     stamp_ns: int
     run_id: int

@@ -1,6 +1,7 @@
 """The parts of the HMM regime model that the per-sample classifier (:mod:`.regimes`) and the whole-run filter
-(:mod:`.regimes_batch`) share: its constants, the paper's rule and the choice of the most probable regime. A module
-of its own so that neither of the two imports the other's internals (they used to import each other).
+(:mod:`.regimes_batch`) share: its constants, the paper's rule, the choice of the most probable regime and the scalar
+helpers (log erfc, an input as a float). A module of its own so that neither of the two imports the other's internals
+(they used to import each other).
 
 Units: efforts and forces N/kg, accelerations m/s^2.
 """
@@ -46,6 +47,27 @@ def most_probable(p0: float, p1: float, p2: float, p3: float) -> int:
     if p3 > top:
         best = BRAKING
     return best
+
+
+def log_erfc(x: float) -> float:
+    """log(erfc(x)); the asymptotic series where erfc underflows."""
+    if x < 5.0:
+        return math.log(math.erfc(x))
+    x2 = x * x
+    return -x2 - math.log(x * math.sqrt(math.pi)) + math.log1p(-0.5 / x2 + 0.75 / (x2 * x2))
+
+
+def to_float(x) -> float | None:
+    """x as a float; None where it is not a number."""
+    try:
+        return float(x)
+    except (TypeError, ValueError):
+        return None
+
+
+def to_float_or_none(x) -> float | None:
+    """An optional value as a float: None where it is None or not a number."""
+    return None if x is None else to_float(x)
 
 
 POWER_OFF, POWER_TRACTION, POWER_REGEN = 0, 1, 2

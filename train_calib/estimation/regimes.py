@@ -76,27 +76,15 @@ from .regime_model import (  # noqa: F401 (POWER_* re-exported)
     POWER_TRACTION,
     SQRT2,
     START_PRIOR,
+    log_erfc,
     most_probable,
     power_state,
     rule,
     rule_array,
+    to_float,
+    to_float_or_none,
 )
 from .regimes_batch import classify_hmm
-
-
-def _log_erfc(x: float) -> float:
-    """log(erfc(x)); the asymptotic series where erfc underflows."""
-    if x < 5.0:
-        return math.log(math.erfc(x))
-    x2 = x * x
-    return -x2 - math.log(x * math.sqrt(math.pi)) + math.log1p(-0.5 / x2 + 0.75 / (x2 * x2))
-
-
-def _float(x) -> float | None:
-    try:
-        return float(x)
-    except (TypeError, ValueError):
-        return None
 
 
 class RegimeClassifier:
@@ -117,9 +105,11 @@ class RegimeClassifier:
         "_imm_history",
         "_imm_input",
         "_imm_streak",
+        "_keep",
         "_known_log",
         "_lagged",
         "_lam",
+        "_lam_s2",
         "_log_norm",
         "_log_stay",
         "_log_switch",
@@ -128,6 +118,8 @@ class RegimeClassifier:
         "_revised",
         "_revised_regime",
         "_sigma",
+        "_sqrt2_s",
+        "_switch",
         "_t_const",
         "_t_min",
         "_v",
@@ -154,6 +146,10 @@ class RegimeClassifier:
         p = cfg.switch_probability
         self._log_stay = math.log(1.0 - p)
         self._log_switch = math.log(p / 3.0)
+        self._switch = math.exp(self._log_switch)  # exp(log) as the filter has always computed them
+        self._keep = math.exp(self._log_stay) - self._switch
+        self._lam_s2 = lam * s * s
+        self._sqrt2_s = SQRT2 * s
         self._vc2 = cfg.resistance_shape_speed**2
         self._known_log = math.log(cfg.known_coast_odds)
         self._w_rel = cfg.resistance_rel_std
@@ -247,14 +243,15 @@ class RegimeClassifier:
         if not streak:
             self._imm_history.clear()
         self._phase = UNKNOWN
-        e = _float(effort)
-        a = _float(acceleration)
+        # (each value as a float: ``to_float``, called only where it is not one already: this runs once a sample)
+        e = effort if type(effort) is float else to_float(effort)
+        a = acceleration if type(acceleration) is float else to_float(acceleration)
         if e is None or a is None or math.isnan(e) or math.isnan(a):
             return UNKNOWN
         v = math.nan
         standing = False
         if speed is not None:
-            v = _float(speed)
+            v = speed if type(speed) is float else to_float(speed)
             if v is None:
                 return UNKNOWN
             standing = not v >= self._v  # NaN too
@@ -265,19 +262,19 @@ class RegimeClassifier:
         if not self._hmm or not (math.isfinite(e) and math.isfinite(a)):
             self._phase = UNKNOWN if standing else rule(e, a, self.config)
             return self._phase
-        w_given = _float(opposing_force) if opposing_force is not None else None
+        w_given = opposing_force if type(opposing_force) is float else to_float_or_none(opposing_force)
         if w_given is not None and not math.isfinite(w_given):
             w_given = None
         phase = UNKNOWN if standing else self._filter(e, a, v, effort_known, w_given)
         self._phase = phase
         if self._imm is None:
             return phase
-        t = _float(time) if time is not None else None
+        t = time if type(time) is float else to_float_or_none(time)
         if t is None or not math.isfinite(t) or not math.isfinite(v):
             if standing:
                 self._imm.restart()
             return phase
-        z = _float(speed_measured) if speed_measured is not None else None
+        z = speed_measured if type(speed_measured) is float else to_float_or_none(speed_measured)
         if z is None or not math.isfinite(z):
             z = v
         if not z >= self._v_imm:  # standing for the imm: the measured speed (its first step, 1 km/h, is moving)
@@ -285,7 +282,7 @@ class RegimeClassifier:
             return UNKNOWN
         w_imm = w_given if w_given is not None else e - a
         g_mean = self._step_track_force(position, track_force_integral)
-        g_here = _float(track_force) if track_force is not None else None
+        g_here = track_force if type(track_force) is float else to_float_or_none(track_force)
         if g_mean is not None and g_here is not None and math.isfinite(g_here):
             w_imm += g_mean - g_here
         self._imm_input = (z, w_imm)
@@ -316,8 +313,8 @@ class RegimeClassifier:
     def _step_track_force(self, position: float | None, integral: float | None) -> float | None:
         """The mean g (N/kg) over the step from the previous (s, Gamma) to this one; None where unknown or where the
         train moved less than ``_STEP_MIN_M`` or more than ``_STEP_MAX_M``."""
-        s = _float(position) if position is not None else None
-        gamma = _float(integral) if integral is not None else None
+        s = position if type(position) is float else to_float_or_none(position)
+        gamma = integral if type(integral) is float else to_float_or_none(integral)
         if s is None or gamma is None or not (math.isfinite(s) and math.isfinite(gamma)):
             return None
         prev, self._g_prev = self._g_prev, (s, gamma)
@@ -345,39 +342,46 @@ class RegimeClassifier:
         # log densities of y under each regime
         s, lam = self._sigma, self._lam
         yt = y - self._t_min
-        l_t = self._t_const - lam * yt + _log_erfc((lam * s * s - yt) / (SQRT2 * s))
+        l_t = self._t_const - lam * yt + log_erfc((self._lam_s2 - yt) / self._sqrt2_s)
         z = y / s
         l_h = self._log_norm - 0.5 * z * z
         sc = math.hypot(s, self._w_rel * w)
         z = (y + w) / sc
-        l_c = -LOG_SQRT_2PI - math.log(sc) - 0.5 * z * z
-        lo, hi = self._b_lo, self._b_hi
-        mass = 0.5 * (math.erf((hi - y) / (SQRT2 * s)) - math.erf((lo - y) / (SQRT2 * s)))
-        if mass > 1e-300:
-            l_b = math.log(mass / (hi - lo))
-        else:  # far outside [lo, hi]: the Gaussian tail of the nearer end
-            z = min(abs(y - lo), abs(y - hi)) / s
-            l_b = self._log_norm - 0.5 * z * z - math.log(hi - lo)
+        l_c = _MINUS_LOG_SQRT_2PI - math.log(sc) - 0.5 * z * z
+        l_b = self._log_brake(y)
         if zero_known:
             l_c += self._known_log
-        logs = (l_t, l_h, l_c, l_b)
-        # predict and update
+        return self._forward(l_t, l_h, l_c, l_b)
+
+    def _log_brake(self, y: float) -> float:
+        """log density of the net acceleration y (m/s^2) under BRAKING: uniform on [lo, hi] plus the noise."""
+        lo, hi, s2 = self._b_lo, self._b_hi, self._sqrt2_s
+        mass = 0.5 * (math.erf((hi - y) / s2) - math.erf((lo - y) / s2))
+        if mass > 1e-300:
+            return math.log(mass / (hi - lo))
+        z = min(abs(y - lo), abs(y - hi)) / self._sigma  # far outside [lo, hi]: the Gaussian tail of the nearer end
+        return self._log_norm - 0.5 * z * z - math.log(hi - lo)
+
+    def _forward(self, l_t: float, l_h: float, l_c: float, l_b: float) -> int:
+        """One step of the forward filter with the log likelihoods of (TRACTION, CRUISING, COASTING, BRAKING): the
+        most probable regime; the probabilities in ``_prob`` (and ``_revised`` with ``lag_samples``)."""
         prev = self._prob
+        top = max(l_t, l_h, l_c, l_b)
+        k0, k1, k2, k3 = math.exp(l_t - top), math.exp(l_h - top), math.exp(l_c - top), math.exp(l_b - top)
         if prev is None:
-            prior = START_PRIOR
+            p0, p1, p2, p3 = START_PRIOR
         else:
-            stay, switch = math.exp(self._log_stay), math.exp(self._log_switch)
-            prior = tuple(p * (stay - switch) + switch for p in prev)
-        top = max(logs)
-        likelihood = [math.exp(lg - top) for lg in logs]
-        post = [p * lk for p, lk in zip(prior, likelihood)]
-        if prev is not None and self._lagged:  # the previous sample given this one: p_prev * (A l), A = keep I + switch
-            common = switch * sum(likelihood)
-            keep = stay - switch
-            self._revised = most_probable(*(p * (keep * lk + common) for p, lk in zip(prev, likelihood)))
-        total = post[0] + post[1] + post[2] + post[3]
-        self._prob = prob = [p / total for p in post]
-        return most_probable(*prob)
+            keep, switch = self._keep, self._switch  # P(i -> j) = keep [i == j] + switch
+            q0, q1, q2, q3 = prev
+            p0, p1, p2, p3 = q0 * keep + switch, q1 * keep + switch, q2 * keep + switch, q3 * keep + switch
+            if self._lagged:  # the previous sample given this one: p_prev * (A l), A = keep I + switch
+                common = switch * sum((k0, k1, k2, k3))
+                self._revised = most_probable(*(p * (keep * lk + common) for p, lk in zip(prev, (k0, k1, k2, k3))))
+        p0, p1, p2, p3 = p0 * k0, p1 * k1, p2 * k2, p3 * k3
+        total = p0 + p1 + p2 + p3
+        p0, p1, p2, p3 = p0 / total, p1 / total, p2 / total, p3 / total
+        self._prob = [p0, p1, p2, p3]
+        return most_probable(p0, p1, p2, p3)
 
     def _carried_w(self, v: float) -> float:
         """r + g where the effort is known: the last computed-effort value, scaled with speed."""
@@ -390,6 +394,7 @@ class RegimeClassifier:
         return w
 
 
+_MINUS_LOG_SQRT_2PI = -LOG_SQRT_2PI
 _STEP_MIN_M = 50.0
 """imm: the mean g over a step is taken over at least this distance (m); shorter (standing, noise): g at the sample."""
 _STEP_MAX_M = 2000.0

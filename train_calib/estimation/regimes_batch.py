@@ -122,7 +122,7 @@ def _log_densities(y: np.ndarray, w: np.ndarray, clf: RegimeClassifier) -> np.nd
 
 
 def _log_erfc(x: np.ndarray) -> np.ndarray:
-    """log(erfc(x)); the asymptotic series where erfc underflows (regimes._log_erfc, elementwise)."""
+    """log(erfc(x)); the asymptotic series where erfc underflows (regime_model.log_erfc, elementwise)."""
     small = x < 5.0
     direct = np.log(erfc(np.where(small, x, 0.0)))
     x2 = x * x

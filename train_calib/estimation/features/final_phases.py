@@ -19,6 +19,7 @@ from .phases import _T, Phase, TailPoint, hold_tail
 from .rules import opposing_force
 
 _NAN = math.nan
+_INF = math.inf
 _FINAL = (COASTING, BRAKING)
 _PT = Point._fields.index("t")
 _tail_point = partial(tuple.__new__, TailPoint)  # TailPoint((t, s, u)) without the Python-level __new__
@@ -44,7 +45,9 @@ class FinalPhases:
         "_min_coast",
         "_open",
         "_power",
-        "_prev",
+        "_prev_r",
+        "_prev_s",
+        "_prev_t",
         "_span",
         "_standstill",
         "_traction_t",
@@ -66,7 +69,7 @@ class FinalPhases:
         self._min_coast = cfg.final_coast_min_duration - 1e-9
         self._min_brake = cfg.final_brake_min_duration - 1e-9
         self._hist: deque[Point] = deque()  # the recent moving samples
-        self._open: list[Change] = []  # changes still collecting the samples after them
+        self._open: Change | None = None  # the change still collecting the samples after it (a new one ends it)
         self._last: dict[int, Phase | None] = {COASTING: None, BRAKING: None}
         self.final: dict[int, Phase | None] = {COASTING: None, BRAKING: None}
         self._coasts: list[Phase] = []  # the last coasting phases that qualified (the final one last)
@@ -74,12 +77,13 @@ class FinalPhases:
         self._traction_t = -math.inf  # end of the last step with measured traction (EFFORT_POWER)
         self.latest: Change | None = None  # the last change located (the end of a braking run for the brake rates)
         self._power = cfg.boundary_from_power
-        self._prev: tuple[float, float, int] = (math.nan, math.nan, UNKNOWN)  # the last sample: t s, s m, its regime
+        # the last sample: t s, s m, its regime
+        self._prev_t, self._prev_s, self._prev_r = math.nan, math.nan, UNKNOWN
 
     def first(self, t: float, s: float, v: float, v_fit: float, regime: int) -> None:
         """The first sample of the run (v filtered, v_fit the speed the changes are located on, ``fit_speed``; regime
         as the first step's ``r_prev``: UNKNOWN when standing)."""
-        self._prev = (t, s, regime)
+        self._prev_t, self._prev_s, self._prev_r = t, s, regime
         if v >= self.cfg.standstill_speed:
             self._hist.append(Point(t, s, v_fit, 0.0, v, EFFORT_COMPUTED))
 
@@ -91,10 +95,10 @@ class FinalPhases:
         the open ones, the old samples forgotten) is written out here, not in helpers: this runs once a sample in
         the feature node and in the whole-run path."""
         t, s, _, accel, v, src = cur
-        t_prev, s_prev, r_prev = self._prev
-        self._prev = (t, s, regime)
+        t_prev, s_prev, r_prev = self._prev_t, self._prev_s, self._prev_r
+        self._prev_t, self._prev_s, self._prev_r = t, s, regime
         dt = t - t_prev
-        if dt > 0.0 and math.isfinite(accel):
+        if dt > 0.0 and -_INF < accel < _INF:  # math.isfinite, without the call
             self._u += accel * dt
         moving = v >= self._standstill
         last = self._last
@@ -114,7 +118,7 @@ class FinalPhases:
                 while tail[0][_T] < t_old:
                     tail.popleft()
                 w = opposing_force(effort, accel, src)
-                if math.isfinite(w):
+                if -_INF < w < _INF:
                     ph.w_last = w
                 minimum = self._min_coast
             else:
@@ -128,11 +132,12 @@ class FinalPhases:
         hist = self._hist
         if moving:  # kept for the changes to come, and given to the open ones
             hist.append(cur)
-            if self._open:
-                for ch in self._open:
-                    ch.add(cur)
-                self._open = [ch for ch in self._open if not ch.closed]
-        t_old = t - self._span - 5.0 * max(dt, 0.0)
+            ch = self._open
+            if ch is not None:
+                ch.add(cur)
+                if ch.closed:
+                    self._open = None
+        t_old = t - self._span - (0.0 if dt < 0.0 else 5.0 * dt)  # 5 max(dt, 0), without the call
         while hist and hist[0][_PT] < t_old:
             hist.popleft()
 
@@ -175,9 +180,9 @@ class FinalPhases:
         self.latest = ch
         if kind == "stop":
             ch.s_stop = s
-        for other in self._open:  # the phase after them ended: the line after a change fits that phase only
-            other.closed = True
-        self._open = [ch]
+        if self._open is not None:  # the phase after it ended: the line after a change fits that phase only
+            self._open.closed = True
+        self._open = ch
         return ch
 
     def _braked_since(self, ph: Phase | None, r: int) -> bool:
@@ -200,11 +205,7 @@ class FinalPhases:
             return ph.bounds(self.refine) if ph is not None else (_NAN, _NAN)
         cfg = self.cfg
         for ph in reversed(self._coasts):
-            tail = ph.tail
-            if ph.end is not None:  # the samples labelled coasting after its located end are the next phase's
-                t_end = ph.end.time(True)
-                tail = [p for p in tail if p.t <= t_end]
-            t_hold = hold_tail(tail, ph.w_last, cfg.hold_check_min)
+            t_hold = self._hold_start(ph)
             if t_hold is None:
                 return ph.bounds(True)
             t0, s0 = ph.start_point(True)
@@ -212,3 +213,19 @@ class FinalPhases:
                 ts = [p.t for p in ph.tail]
                 return t_hold - t0, float(np.interp(t_hold, ts, [p.s for p in ph.tail])) - s0
         return _NAN, _NAN
+
+    def _hold_start(self, ph: Phase) -> float | None:
+        """``hold_tail`` of a coasting phase up to its located end (s), remembered while its tail (the same first and
+        last point objects and length: points are only appended and dropped from the front), w and end stay; a
+        feature snapshot at every change of regime asks again for the same coasts."""
+        tail, w = ph.tail, ph.w_last
+        t_end = ph.end.time(True) if ph.end is not None else None
+        first, last = (tail[0], tail[-1]) if tail else (None, None)
+        memo = ph.hold_memo  # (length, first point, last point, w, t_end, the result); a NaN w is never equal
+        same_tail = memo is not None and memo[0] == len(tail) and memo[1] is first and memo[2] is last
+        if same_tail and memo[3] == w and memo[4] == t_end:  # type: ignore[index]
+            return memo[5]  # type: ignore[index]
+        points = tail if t_end is None else [p for p in tail if p.t <= t_end]  # after the end: the next phase's
+        t_hold = hold_tail(points, w, self.cfg.hold_check_min)
+        ph.hold_memo = (len(tail), first, last, w, t_end, t_hold)
+        return t_hold

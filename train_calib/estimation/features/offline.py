@@ -134,9 +134,10 @@ def _cruise_phases(
 ) -> list[rules.CruisePhase]:
     """The cruising phases that count; v: the filtered speed of each sample, m/s."""
     out = []
+    t = steps.t
     for a, b in phases:
-        if steps.regime[a] == CRUISING:
-            phase = rules.cruise_phase(steps.t[a], steps.t[b], v[a + 1 : b + 1], np.maximum(steps.dt[a:b], 0.0), cfg)
+        if steps.regime[a] == CRUISING and rules.cruise_counts(t[a], t[b], cfg):
+            phase = rules.cruise_phase(t[a], t[b], v[a + 1 : b + 1], np.maximum(steps.dt[a:b], 0.0), cfg)
             if phase is not None:
                 out.append(phase)
     return out
@@ -155,11 +156,12 @@ def _final_phases(
     final.first(tl[0], sl[0], vl[0], fl[0], steps.first)
     r_prev = steps.first
     brake_ends: dict[int, Change | None] = {}
-    for k in range(1, len(tl)):
-        r = rl[k - 1]
-        final.step(new_point((tl[k], sl[k], fl[k], al[k], vl[k], srcl[k])), r, el[k])
+    # the point of each sample after the first (made in C: zip's rows as Points), with its step's regime and effort
+    points = map(new_point, zip(tl[1:], sl[1:], fl[1:], al[1:], vl[1:], srcl[1:]))
+    for k, (point, r, effort) in enumerate(zip(points, rl, el[1:])):
+        final.step(point, r, effort)
         if r_prev == BRAKING and r != BRAKING:
-            brake_ends[k - 1] = final.latest
+            brake_ends[k] = final.latest
         r_prev = r
     return final, brake_ends
 

@@ -117,7 +117,7 @@ class FeatureAccumulator:
             if self._regime != CRUISING:
                 self._cruise_v, self._cruise_dt, self._cruise_start = [], [], t_prev
             self._cruise_v.append(v)
-            self._cruise_dt.append(max(dt, 0.0))
+            self._cruise_dt.append(0.0 if dt < 0.0 else dt)  # max(dt, 0.0), without the call
         elif self._regime == CRUISING:
             phase = self._cruise_phase(t_prev)
             if phase is not None:
@@ -126,7 +126,7 @@ class FeatureAccumulator:
 
     def _cruise_phase(self, t_end: float) -> rules.CruisePhase | None:
         """The current cruising phase ending at t_end, if it counts."""
-        if not self._cruise_v:
+        if not self._cruise_v or not rules.cruise_counts(self._cruise_start, t_end, self.config):
             return None
         speeds, durations = np.array(self._cruise_v), np.array(self._cruise_dt)
         return rules.cruise_phase(self._cruise_start, t_end, speeds, durations, self.config)

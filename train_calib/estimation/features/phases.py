@@ -12,7 +12,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .boundaries import Change
+from .boundaries import Change, columns
 
 _NAN = math.nan
 _QUANT_VAR = (1.0 / 3.6) ** 2 / 12.0
@@ -37,7 +37,7 @@ class Phase:
     """A (merged) phase of one regime: start and end changes, the time labelled with the regime; for coasting the
     samples of its last ``hold_check_window`` seconds (``TailPoint``) and the last r + g (N/kg)."""
 
-    __slots__ = ("end", "first_s", "first_t", "labelled", "last_s", "last_t", "start", "tail", "w_last")
+    __slots__ = ("end", "first_s", "first_t", "hold_memo", "labelled", "last_s", "last_t", "start", "tail", "w_last")
 
     def __init__(self, start: Change | None, t0: float, s0: float) -> None:
         self.start, self.end = start, None
@@ -46,6 +46,7 @@ class Phase:
         self.labelled = 0.0
         self.tail: deque[TailPoint] = deque()
         self.w_last = _NAN
+        self.hold_memo: tuple | None = None  # FinalPhases._hold_start's last question and answer
 
     def start_point(self, refine: bool) -> tuple[float, float]:
         """(t s, s m) where the phase starts."""
@@ -97,9 +98,9 @@ def hold_tail(tail: Sequence[TailPoint], w: float, min_tail: float) -> float | N
     """
     if len(tail) < 5 or not w > 0.0:
         return None
-    arr = np.asarray(tail, dtype=float)  # one row a TailPoint
-    t = arr[:, _T] - arr[-1, _T]
-    v = arr[:, _U]
+    arr = columns(tail, _T, _U)
+    t = arr[:, 0] - arr[-1, 0]
+    v = arr[:, 1]
     k = _flat_break(t, v, min_tail)
     if k is None:
         return None
@@ -113,4 +114,4 @@ def hold_tail(tail: Sequence[TailPoint], w: float, min_tail: float) -> float | N
     var = sigma2 / sxx
     var_c = var + (0.3 * w) ** 2
     log_lr = 0.5 * ((slope + w) ** 2 / var_c - slope * slope / var) + 0.5 * math.log(var_c / var)
-    return float(arr[k, _T]) if log_lr > math.log(100.0) else None
+    return float(arr[k, 0]) if log_lr > math.log(100.0) else None

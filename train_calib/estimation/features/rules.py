@@ -123,9 +123,15 @@ class CruisePhase(NamedTuple):
     """Duration of the step ending at each sample (>= 0), s: the weights of the run's cruise speed."""
 
 
+def cruise_counts(start: float, end: float, cfg: FeatureConfig) -> bool:
+    """Whether a cruising phase from ``start`` to ``end`` (s) counts: it lasts at least ``cruise_min_duration``."""
+    return end - start >= cfg.cruise_min_duration
+
+
 def cruise_phase(start: float, end: float, speeds: np.ndarray, durations: np.ndarray, cfg: FeatureConfig):
-    """The phase from ``start`` to ``end`` (s) as a CruisePhase, or None when shorter than cruise_min_duration."""
-    if end - start >= cfg.cruise_min_duration:
+    """The phase from ``start`` to ``end`` (s) as a CruisePhase, or None when it does not count (``cruise_counts``;
+    the paths ask that first, before they make the arrays)."""
+    if cruise_counts(start, end, cfg):
         return CruisePhase(float(np.median(speeds)), speeds, durations)
     return None
 
