@@ -331,11 +331,17 @@ class _StepConstants(NamedTuple):
     @classmethod
     def of(cls, dt: float, dwell: float, pmax: float, q2: float) -> _StepConstants:
         """The constants of a step of dt s (``imm_mean_dwell`` dwell s, ``imm_switch_max`` pmax, the walk's q2)."""
-        switch = min(pmax, -math.expm1(-dt / dwell))
-        stay, off = 1.0 - switch, switch / 3.0
+        stay, off = transition(dt, dwell, pmax)
         q = q2 * dt
         dt2 = dt * dt
         return cls(off, stay - off, q, dt2, 2.0 * dt, 0.5 * dt * q, dt2 * q / 3.0)
+
+
+def transition(dt: float, mean_dwell: float, switch_max: float) -> tuple[float, float]:
+    """(stay, off): the probabilities of keeping a mode and of changing to one given other mode over dt s: switch =
+    min(switch_max, 1 - exp(-dt / mean_dwell)), off = switch / 3 (``imm_mean_dwell``, ``imm_switch_max``)."""
+    switch = min(switch_max, -math.expm1(-dt / mean_dwell))
+    return 1.0 - switch, switch / 3.0
 
 
 Prior = tuple[float, float, float, float, float]

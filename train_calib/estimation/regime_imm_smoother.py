@@ -32,7 +32,7 @@ from collections.abc import Sequence
 from typing import NamedTuple
 
 from ..regime_codes import COASTING, CRUISING
-from .regime_imm import ImmFilter
+from .regime_imm import ImmFilter, transition
 from .regime_model import backward_message, most_probable
 
 LONG_STEP_S = 5.0
@@ -54,13 +54,6 @@ class ImmStep(NamedTuple):
     restarted: bool
     speed: float = math.nan
     opposing_force: float = math.nan
-
-
-def transition(dt: float, mean_dwell: float, switch_max: float) -> tuple[float, float]:
-    """(stay, off): the imm's probabilities of keeping its mode and of changing to one given other mode over dt s
-    (``ImmFilter``: switch = min(switch_max, 1 - exp(-dt / mean_dwell)), off = switch / 3)."""
-    switch = min(switch_max, -math.expm1(-dt / mean_dwell))
-    return 1.0 - switch, switch / 3.0
 
 
 def smoothed_labels(steps: Sequence[ImmStep], mean_dwell: float, switch_max: float) -> list[int]:
