@@ -51,21 +51,11 @@ class PiecewiseConstant:
 
     def mean_integral_over(self, start_m, end_m) -> np.ndarray:
         """Mean of :meth:`integral` over [start, end] (integral(end) where the interval is empty)."""
-        a = np.asarray(start_m, dtype=float)
-        b = np.asarray(end_m, dtype=float)
-        width = b - a
-        with np.errstate(invalid="ignore", divide="ignore"):
-            mean = (self.integral2(b) - self.integral2(a)) / width
-        return np.where(width > 1e-9, mean, self.integral(b))
+        return _mean_over(self.integral2, self.integral, start_m, end_m)
 
     def mean_over(self, start_m, end_m) -> np.ndarray:
         """Mean of f over [start, end] (f(end) where the interval is empty)."""
-        a = np.asarray(start_m, dtype=float)
-        b = np.asarray(end_m, dtype=float)
-        width = b - a
-        with np.errstate(invalid="ignore", divide="ignore"):
-            mean = (self.integral(b) - self.integral(a)) / width
-        return np.where(width > 1e-9, mean, self(b))
+        return _mean_over(self.integral, self, start_m, end_m)
 
     def next_change(self, s_m: float) -> float:
         """The first break strictly after s (inf when none)."""
@@ -152,3 +142,14 @@ class ScalarPiecewise:
                 b - a
             )
         return self(b)
+
+
+def _mean_over(antiderivative, function, start_m, end_m) -> np.ndarray:
+    """Mean of a function over [start, end] (m) from its antiderivative, (F(end) - F(start)) / (end - start); the
+    function at end where the interval is empty (under 1e-9 m)."""
+    a = np.asarray(start_m, dtype=float)
+    b = np.asarray(end_m, dtype=float)
+    width = b - a
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean = (antiderivative(b) - antiderivative(a)) / width
+    return np.where(width > 1e-9, mean, function(b))
