@@ -33,12 +33,12 @@ from .estimation import (
     RegimeConfig,
     ResistanceEstimator,
     UKFConfig,
-    classify_regimes,
 )
 from .estimation.coast_regression import CoastFit, CoastSettings, RunArrays, fit_coasts
 from .estimation.effort import PowerEffort
 from .estimation.records import EFFORT_COMPUTED, EstimateSample
 from .estimation.regime_model import power_state
+from .estimation.regimes_whole_run import ESTIMATE_COLUMNS, classify_whole_run
 from .estimation.safeguards import SafeguardConfig
 from .ingest import Ingest, IngestConfig, IngestStats, fix_from_msg, power_from_msg, speed_from_msg
 from .measurement import Measurement, MeasurementSeries
@@ -360,7 +360,7 @@ def whole_run_regimes(out: PipelineOutput, train: TrainSpec, config: RegimeConfi
     Gamma(s) of each estimate's measurement), ``smooth=True`` (with ``imm``: :mod:`.estimation.regime_imm_smoother`;
     with ``hmm``: forward-backward). The phase stays the published one. Not causal: never what the graph publishes."""
     cfg = config if config is not None else RegimeConfig()
-    if not out.estimates or cfg.method == "rule":
+    if not out.estimates:
         return list(out.regimes)
     by_stamp = {(m.stamp_ns, m.run_id): m for m in out.measurements}
     meas = [by_stamp.get((e.stamp_ns, e.run_id)) for e in out.estimates]
@@ -371,17 +371,15 @@ def whole_run_regimes(out: PipelineOutput, train: TrainSpec, config: RegimeConfi
         return np.array([np.nan if x is None else x for x in values], dtype=float)
 
     est = out.estimates
-    regimes = classify_regimes(
-        column(e.effort for e in est), column(e.acceleration for e in est), cfg, speed=column(e.v for e in est),
-        effort_known=[bool(e.effort_known) for e in est],
-        opposing_force=column(None if e.resistance is None or e.track_force is None else e.resistance + e.track_force
-                              for e in est),
-        speed_measured=column(e.v_measured for e in est), time=[e.stamp_ns * 1e-9 for e in est],
-        power=[-1 if p is None else p for p in states], track_force=column(e.track_force for e in est),
-        position=column(None if m is None else m.s for m in meas),
-        track_force_integral=column(None if m is None else m.track_force_integral for m in meas),
-        smooth=cfg.method in ("imm", "hmm"),
-    )  # fmt: skip
+    columns = {name: column(getattr(e, name) for e in est) for name in ESTIMATE_COLUMNS if name != "t"}
+    columns["t"] = [e.stamp_ns * 1e-9 for e in est]
+    regimes = classify_whole_run(
+        columns,
+        cfg,
+        [-1 if p is None else p for p in states],
+        column(None if m is None else m.s for m in meas),
+        column(None if m is None else m.track_force_integral for m in meas),
+    )
     return [replace(r, regime=int(k)) for r, k in zip(out.regimes, regimes.tolist())]
 
 

@@ -26,7 +26,7 @@ from .estimation.config import RegimeConfig
 from .estimation.effort import PowerEffort
 from .estimation.records import EFFORT_COMPUTED, EFFORT_SOURCES
 from .estimation.regime_model import power_state
-from .estimation.regimes import classify_regimes
+from .estimation.regimes_whole_run import classify_whole_run
 from .measurement import track_force_integral_of
 from .physics import KMH, davis
 from .regime_codes import REGIME_NAMES, regime_name
@@ -359,13 +359,8 @@ def whole_run_regimes(outputs: Outputs, train: TrainSpec, config: RegimeConfig |
     states = [
         -1 if k is None else power_state(SimpleNamespace(**{c: meas[c][k] for c in POWER_COLUMNS}), power) for k in rows
     ]
-    whole = classify_regimes(
-        est["effort"], est["acceleration"], cfg, speed=est["v"], effort_known=est["effort_known"].astype(bool),
-        opposing_force=est["resistance"] + est["track_force"], speed_measured=est["v_measured"],
-        time=est["t"], power=[-1 if p is None else p for p in states], track_force=est["track_force"],
-        position=at_measurement("s"), track_force_integral=at_measurement("track_force_integral"),
-        smooth=cfg.method != "rule",
-    )  # fmt: skip
+    position, integral = at_measurement("s"), at_measurement("track_force_integral")
+    whole = classify_whole_run(est, cfg, [-1 if p is None else p for p in states], position, integral)
     on_board = np.asarray(reg["regime"])
 
     def counts(labels: np.ndarray) -> dict[str, int]:
