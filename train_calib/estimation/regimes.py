@@ -239,9 +239,10 @@ class RegimeClassifier:
         """
         self._revised = None
         self._revised_regime = None
-        streak, self._imm_streak = self._imm_streak, False  # did the previous call reach the imm?
-        if not streak:
-            self._imm_history.clear()
+        if self._lagged:  # lag_samples 1: the imm history holds only an unbroken run of imm steps
+            streak, self._imm_streak = self._imm_streak, False  # did the previous call reach the imm?
+            if not streak:
+                self._imm_history.clear()
         self._phase = UNKNOWN
         # (each value as a float: ``to_float``, called only where it is not one already: this runs once a sample)
         e = effort if type(effort) is float else to_float(effort)
