@@ -113,9 +113,9 @@ def test_regimes_get_effort_known_and_the_opposing_force(synthetic):
     effort, accel, v = ([getattr(x, n) for x in e] for n in ("effort", "acceleration", "v"))
     known = [x.effort_known for x in e]
     w = [x.resistance + x.track_force for x in e]
-    with_keywords = classify_regimes(effort, accel, speed=v, effort_known=known, opposing_force=w)  # the phase
+    _, with_keywords = classify_regimes(effort, accel, speed=v, effort_known=known, opposing_force=w, phase=True)
     assert [r.phase for r in out.regimes] == with_keywords.tolist()
-    plain = classify_regimes(effort, accel, speed=v)
+    _, plain = classify_regimes(effort, accel, speed=v, phase=True)
     assert sum(known) > 50 and np.count_nonzero(plain != with_keywords) > 10  # measured: 87 known, 27 differ
 
 

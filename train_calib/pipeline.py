@@ -99,11 +99,11 @@ def classify_estimate(
 class RegimeStream:
     """regime_node's publication rule (shared with :class:`Pipeline`): ``push(sample)`` classifies an estimate and
     returns the (sample, regime, phase) triples to publish now, in order. With ``lag_samples`` 0 that is the sample
-    itself; with 1 the previous sample, its phase revised with this one (``RegimeClassifier.revised_previous``; its
-    own causal phase where this sample does not inform it, e.g. a new run; with ``hmm`` the regime is the phase;
-    with ``imm`` the regime at its instant where a change fell inside a long step around it,
-    ``RegimeClassifier.revised_previous_regime``), and this one is held until the next or ``flush()`` (end of
-    input).
+    itself; with 1 (the default) the previous sample, revised with this one: with ``imm`` its regime
+    (``RegimeClassifier.revised_previous_regime``: the mode probabilities smoothed over one more step, and the
+    regime at its instant where a change fell inside a long step around it), its phase the causal one; with ``hmm``
+    its phase, which is the regime (``RegimeClassifier.revised_previous``); its causal labels where this sample does
+    not inform it (e.g. a new run). This one is held until the next or ``flush()`` (end of input).
     Samples carry ``run_id``; the held one is released with its causal labels when a sample of another run comes."""
 
     def __init__(self, config: RegimeConfig | None = None) -> None:
@@ -239,7 +239,7 @@ class Pipeline:
         self.estimator = ResistanceEstimator(train, ukf, initial, safeguards)
         regime = regime if regime is not None else RegimeConfig()
         if not regime_labels and regime.method == "imm":  # the phase alone: the imm's hmm, without the imm
-            regime = replace(regime, method="hmm")
+            regime = replace(regime, method="hmm", lag_samples=0)  # beside the imm the phase is never revised
         self.regimes = RegimeStream(regime)
         self._power = PowerEffort(train)  # the traction power's state for the regimes
         self.features = FeatureStream(features, feature_changes)

@@ -507,8 +507,8 @@ def markdown(scores: Sequence[RunScore], preset: str, note: str = "") -> str:
         "pipeline's own measurements (the data's own limit), with the correlation of the speed-difference "
         "equations; oracle, white: the same with the equations taken as independent; "
         "2 sigma: runs whose truth lies inside the final estimate's 2 sigma; worse: runs more than 2 points worse "
-        "than the prior; regimes: median per-sample accuracy (standing ignored), on board (causal) / whole run "
-        "(offline, ``pipeline.whole_run_regimes``).",
+        "than the prior; regimes: median per-sample accuracy (standing ignored), on board (what regime_node publishes "
+        "at the defaults, one sample late) / whole run (offline, ``pipeline.whole_run_regimes``).",
         "",
         "| family | split | runs | err v_ref | err 120 (runs) | prior | oracle (runs with coast) | oracle, white | "
         "coast s | inside 2 sigma | 2 sigma / r | worse | regimes | best err (inside) |",

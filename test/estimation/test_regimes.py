@@ -23,7 +23,7 @@ from train_calib.estimation import (
 )
 
 RULE = RegimeConfig(method="rule")
-HMM = RegimeConfig(method="hmm")  # the paper's phases (the phase label beside the default imm regime)
+HMM = RegimeConfig(method="hmm", lag_samples=0)  # the paper's phases, causal (the phase label beside the imm regime)
 KMH = 1.0 / 3.6
 
 
@@ -505,7 +505,7 @@ def test_revised_previous_is_the_previous_sample_given_the_next():
         assert c.revised_previous == smooth[k - 1], k
         revised += c.revised_previous != classify_regimes(effort[:k], accel[:k], cfg, speed=speed[:k])[k - 1]
     assert revised >= 1  # the later sample changed at least one label
-    causal = RegimeClassifier(HMM)  # lag_samples 0: nothing revised (and nothing computed for it)
+    causal = RegimeClassifier(RegimeConfig(method="hmm", lag_samples=0))  # nothing revised (nor computed for it)
     for k in range(3):
         causal.classify(effort[k], accel[k], speed[k])
         assert causal.revised_previous is None
@@ -566,7 +566,7 @@ def test_imm_labels_traction_coast_cycles_traction_and_coasting_where_the_phase_
     traction cruising (|a| < 0.06); imm, told the speed sensor's noise (0.1 km/h here), labels each sample; its
     phase is the hmm's. With the default noise (0.15 m/s, for 0.5 km/h sensors) it is slower: 68 % (docs)."""
     truth, t, v, slope, effort, w = _cycles(np.random.default_rng(5))
-    cfg = RegimeConfig(imm_speed_noise_std=0.05)
+    cfg = RegimeConfig(imm_speed_noise_std=0.05, lag_samples=0)  # causal (the default publishes one sample late)
     reg, phase = classify_regimes(effort, slope, cfg, v, opposing_force=w, speed_measured=v, time=t, phase=True)
     assert np.mean(reg == truth) >= 0.85  # measured 0.88 (seeds 5, 6: 0.88, 0.86)
     assert np.mean(reg[truth == TRACTION] == CRUISING) <= 0.08  # the cycles are not cruising (measured 0.05)
@@ -578,10 +578,59 @@ def test_imm_labels_traction_coast_cycles_traction_and_coasting_where_the_phase_
     assert np.mean(rule[truth == TRACTION] == CRUISING) >= 0.5  # the paper's rule: these cycles are cruising (0.87)
 
 
+def test_imm_one_sample_late_is_the_smoother_of_the_prefix_and_classify_regimes_gives_it():
+    """lag_samples 1 (the default) with the imm at 1 Hz (steps under 5 s, so no change is placed inside a step):
+    the revised regime of sample k - 1 is the whole-run smoother's label of k - 1 over the samples up to k (a
+    fixed-lag smoother of one sample; a standstill restarts it), it differs from the causal label on some samples
+    and is more often right, and ``classify_regimes`` with the default config gives what the stream publishes."""
+    from dataclasses import replace
+
+    from train_calib.estimation.regime_imm_smoother import imm_step_after, smoothed_labels
+    from train_calib.estimation.regime_model import most_probable
+    from train_calib.pipeline import RegimeStream
+
+    truth, t, v, slope, effort, w = _cycles(np.random.default_rng(7), n_cycles=4)
+    stamps = np.round(t * 1e9).astype(np.int64)
+    t = stamps * 1e-9  # the time as the pipeline computes it from a stamp
+    v[60] = 0.0  # a standstill: the next sample starts a new sequence
+    cfg = RegimeConfig(imm_speed_noise_std=0.05)
+    assert cfg.lag_samples == 1
+    c = RegimeClassifier(cfg)
+    steps, revised_count = [], 0
+    for k in range(truth.size):
+        before = c.imm_probabilities, c._imm.time
+        c.classify(effort[k], slope[k], v[k], opposing_force=w[k], speed_measured=v[k], time=t[k])
+        step = imm_step_after(c._imm, *before, *c._imm_input)
+        if step is None or step.restarted:
+            steps = []
+        if step is not None:
+            steps.append(step)
+        if len(steps) >= 2:
+            smoothed = smoothed_labels(steps, cfg.imm_mean_dwell, cfg.imm_switch_max)
+            assert c.revised_previous_regime == smoothed[-2], k
+            revised_count += smoothed[-2] != most_probable(*steps[-2].probabilities)
+        else:
+            assert c.revised_previous_regime is None, k
+    assert revised_count >= 3, revised_count  # the next sample changed some labels (measured 9)
+    causal = classify_regimes(effort, slope, replace(cfg, lag_samples=0), v, opposing_force=w, speed_measured=v, time=t)
+    lagged = classify_regimes(effort, slope, cfg, v, opposing_force=w, speed_measured=v, time=t)
+    stream = RegimeStream(cfg)
+    published = []
+    for k in range(truth.size):
+        sample = SimpleNamespace(run_id=0, effort=effort[k], acceleration=slope[k], v=v[k], effort_known=None,
+                                 resistance=w[k], track_force=0.0, v_measured=v[k],
+                                 stamp_ns=int(stamps[k]))  # fmt: skip
+        published += [r for _, r, _ in stream.push(sample)]
+    published += [r for _, r, _ in stream.flush()]
+    assert published == lagged.tolist()
+    moving = v > 1.0
+    assert np.mean(lagged[moving] == truth[moving]) > np.mean(causal[moving] == truth[moving])
+
+
 def test_imm_per_sample_and_batch_agree_and_phase_follows_the_classifier():
     truth, t, v, slope, effort, w = _cycles(np.random.default_rng(6), n_cycles=3)
     v[40] = 0.0  # a standstill restarts both filters
-    cfg = RegimeConfig()
+    cfg = RegimeConfig(lag_samples=0)  # the classifier's own labels, causal
     whole, phases = classify_regimes(effort, slope, cfg, v, opposing_force=w, speed_measured=v, time=t, phase=True)
     c = RegimeClassifier(cfg)
     for k in range(truth.size):
@@ -720,21 +769,20 @@ def test_imm_departure_at_one_km_h_is_moving():
     assert RegimeConfig().imm_standstill_speed < 1.0 * KMH < RegimeConfig().standstill_speed
 
 
-VALIDATION_RUNS = {  # run: (imm at least, the hmm phase measured) per-sample truth, standing ignored (report half)
-    "cycles_1hz_01": (0.90, 0.872),  # measured 0.919
-    "cycles_1hz_05": (0.93, 0.883),  # measured 0.949
-    "hold_10s_03": (0.93, 0.913),  # measured 0.948
-    "cycles_power_1hz_01": (0.94, 0.831),  # measured 0.956 with the power's state (0.900 from the speeds alone)
-    "eco_metro_yizhuang_01": (0.93, 0.775),  # measured 0.942 with power and 1 km/h departures (0.877 before)
+VALIDATION_RUNS = {  # run: (at the defaults at least, causal at least, the causal hmm phase measured) per-sample
+    # truth, standing ignored (report half); the defaults publish one sample late (lag_samples 1), causal is lag 0
+    "cycles_1hz_01": (0.92, 0.90, 0.869),  # measured 0.933, 0.920
+    "cycles_1hz_05": (0.95, 0.93, 0.883),  # measured 0.961, 0.952
+    "hold_10s_03": (0.96, 0.93, 0.913),  # measured 0.974, 0.948
+    "cycles_power_1hz_01": (0.95, 0.94, 0.831),  # measured 0.964, 0.956 with the power's state (0.900 without)
+    "eco_metro_yizhuang_01": (0.945, 0.93, 0.775),  # measured 0.956, 0.942 with power and 1 km/h departures
 }
-
-
 WHOLE_RUN_AT_LEAST = {  # the whole run's labels (pipeline.whole_run_regimes), per-sample truth, standing ignored
-    "cycles_1hz_01": 0.97,  # measured 0.976 (on board 0.920)
-    "cycles_1hz_05": 0.975,  # measured 0.980 (0.952)
-    "hold_10s_03": 0.99,  # measured 1.000 (0.948)
-    "cycles_power_1hz_01": 0.967,  # measured 0.973 (0.956)
-    "eco_metro_yizhuang_01": 0.969,  # measured 0.974 (0.942)
+    "cycles_1hz_01": 0.97,  # measured 0.976 (on board 0.933, causal 0.920)
+    "cycles_1hz_05": 0.975,  # measured 0.980 (0.961, 0.952)
+    "hold_10s_03": 0.99,  # measured 1.000 (0.974, 0.948)
+    "cycles_power_1hz_01": 0.967,  # measured 0.973 (0.964, 0.956)
+    "eco_metro_yizhuang_01": 0.969,  # measured 0.974 (0.956, 0.942)
 }
 
 
@@ -762,8 +810,9 @@ def test_lag_one_sample_gives_the_imm_regime_at_the_instant_of_a_change_inside_a
 
 
 def test_whole_run_regimes_of_eco_driving_at_10_s(tmp_path):
-    """Two held-out eco runs at 10 s on the Stadelhofen profile (phases of one to three samples): the on-board
-    labels miss changes inside a step (0.867, 0.750 measured), the whole run's get them (1.000, 1.000 measured)."""
+    """Two held-out eco runs at 10 s on the Stadelhofen profile (phases of one to three samples): causal labels
+    miss changes inside a step (0.867, 0.750 measured), the on-board ones at the defaults (one sample late) get most
+    (0.978, 0.925), the whole run's all (1.000, 1.000 measured)."""
     import json
     from pathlib import Path
 
@@ -773,7 +822,8 @@ def test_whole_run_regimes_of_eco_driving_at_10_s(tmp_path):
 
     family, score = validation_module("family"), validation_module("score")
     specs = {s.name: s for s in family.all_specs()}
-    for name, causal_measured in (("eco_stadelhofen_03", 0.867), ("eco_stadelhofen_05", 0.750)):
+    runs = (("eco_stadelhofen_03", 0.867, 0.96), ("eco_stadelhofen_05", 0.750, 0.90))  # measured 0.978, 0.925 on board
+    for name, causal_measured, on_board_least in runs:
         spec = specs[name]
         assert spec.split == "report"
         family.generate(spec, tmp_path)
@@ -781,12 +831,15 @@ def test_whole_run_regimes_of_eco_driving_at_10_s(tmp_path):
         track, train = family.resolve_track(spec.family.track), family.resolve_train(spec.family.train)
         train = score._train(str(train))
         out = run_bag(bag, score._track(str(track)), train)
+        causal_out = run_bag(bag, score._track(str(track)), train, regime=RegimeConfig(lag_samples=0))
         doc = json.loads(Path(bag + family.TRUTH_SUFFIX).read_text(encoding="utf-8"))
         first_ns = score.first_message_ns(bag)
         t, truth = np.asarray(doc["t"], dtype=float), np.asarray(doc["regime"], dtype=int)
-        causal = score.regime_accuracy(out, first_ns, t, truth)
+        causal = score.regime_accuracy(causal_out, first_ns, t, truth)
+        on_board = score.regime_accuracy(out, first_ns, t, truth)
         whole = score.regime_accuracy(SimpleNamespace(regimes=whole_run_regimes(out, train)), first_ns, t, truth)
         assert abs(causal - causal_measured) < 0.03, (name, causal)
+        assert on_board >= on_board_least, (name, on_board)
         assert whole >= 0.97, (name, whole)
 
 
@@ -808,7 +861,7 @@ def test_imm_regimes_on_validation_runs_against_per_sample_truth(tmp_path):
     specs = {s.name: s for s in family.all_specs()}
     from train_calib.pipeline import whole_run_regimes
 
-    for name, (bound, phase_measured) in VALIDATION_RUNS.items():
+    for name, (bound, causal_bound, phase_measured) in VALIDATION_RUNS.items():
         spec = specs[name]
         assert spec.split == "report"
         family.generate(spec, tmp_path)
@@ -816,16 +869,19 @@ def test_imm_regimes_on_validation_runs_against_per_sample_truth(tmp_path):
         entry = score.RunEntry(bag, str(family.resolve_track(spec.family.track)),
                                str(family.resolve_train(spec.family.train)), spec.family.name, spec.split)  # fmt: skip
         doc = json.loads(Path(bag + family.TRUTH_SUFFIX).read_text(encoding="utf-8"))
-        out = run_bag(bag, score._track(entry.track), score._train(entry.train), ukf=UKFConfig())
+        track, train = score._track(entry.track), score._train(entry.train)
+        out = run_bag(bag, track, train, ukf=UKFConfig())
+        causal = run_bag(bag, track, train, ukf=UKFConfig(), regime=RegimeConfig(lag_samples=0))
         first_ns = score.first_message_ns(bag)
         t, truth = np.asarray(doc["t"], dtype=float), np.asarray(doc["regime"], dtype=int)
         accuracy = score.regime_accuracy(out, first_ns, t, truth)
-        phases = SimpleNamespace(regimes=[replace(r, regime=r.phase) for r in out.regimes])
+        causal_accuracy = score.regime_accuracy(causal, first_ns, t, truth)
+        phases = SimpleNamespace(regimes=[replace(r, regime=r.phase) for r in causal.regimes])
         phase_accuracy = score.regime_accuracy(phases, first_ns, t, truth)
-        assert accuracy >= bound and accuracy >= phase_accuracy + 0.015, (name, accuracy, phase_accuracy)
-        whole = score.regime_accuracy(SimpleNamespace(regimes=whole_run_regimes(out, score._train(entry.train))),
-                                      first_ns, t, truth)  # fmt: skip
-        assert whole >= WHOLE_RUN_AT_LEAST[name] and whole >= accuracy + 0.01, (name, whole, accuracy)
+        assert accuracy >= bound and accuracy >= causal_accuracy + 0.005, (name, accuracy, causal_accuracy)
+        assert causal_accuracy >= causal_bound and causal_accuracy >= phase_accuracy + 0.015, (name, causal_accuracy)
+        whole = score.regime_accuracy(SimpleNamespace(regimes=whole_run_regimes(out, train)), first_ns, t, truth)
+        assert whole >= WHOLE_RUN_AT_LEAST[name] and whole >= accuracy + 0.005, (name, whole, accuracy)
         assert abs(phase_accuracy - phase_measured) < 0.02, (name, phase_accuracy)  # the phase: the former regimes
         if spec.family.name.startswith("cycles"):
             reg = np.array([r.regime for r in out.regimes])

@@ -72,7 +72,7 @@ def test_the_power_of_each_estimates_measurement_reaches_the_classifier_as_in_th
     from train_calib.pipeline import RegimeStream
     from train_calib.train import load_train
 
-    node, published = _node(rclpy_context)
+    node, published = _node(rclpy_context, lag_samples=0)  # causal: one message per estimate at once
     v = 20.0
     n = 40
     # traction power (1 MW) for 10 s, nothing for 20, regenerated for 10; stamp 15 has no measurement at all
@@ -92,7 +92,7 @@ def test_the_power_of_each_estimates_measurement_reaches_the_classifier_as_in_th
             assert node.pending <= 1  # held only until its measurement has come (or a later one)
         node.end_of_input()
         got = [m.regime for m in published]
-        stream = RegimeStream(RegimeConfig())
+        stream = RegimeStream(RegimeConfig(lag_samples=0))
         effort = PowerEffort(load_train(train_file("virm6")))
         expected = []
         for k in range(n):
@@ -104,7 +104,7 @@ def test_the_power_of_each_estimates_measurement_reaches_the_classifier_as_in_th
         assert got[5:10] == [CRUISING] * 5  # a hold under traction power
         assert got[13:15] == [COASTING] * 2 and got[16:30] == [COASTING] * 14  # no power: coasting within 3 s
         assert got[33:40] == [CRUISING] * 7  # regenerated, the speed held: a hold downhill
-        speeds_alone = RegimeStream(RegimeConfig())
+        speeds_alone = RegimeStream(RegimeConfig(lag_samples=0))
         alone = [speeds_alone.push(regime_input_from_msg(e))[0][1] for e in estimates]
         assert alone[13:30].count(COASTING) == 0  # without the power: all held speeds are a hold
         assert MEASUREMENT_WAIT >= 10
@@ -115,7 +115,7 @@ def test_the_power_of_each_estimates_measurement_reaches_the_classifier_as_in_th
 def test_without_measurements_the_estimates_go_after_the_wait_or_at_the_end(rclpy_context):
     from train_calib.nodes.regime_node import MEASUREMENT_WAIT
 
-    node, published = _node(rclpy_context)
+    node, published = _node(rclpy_context, lag_samples=0)
     try:
         for k in range(MEASUREMENT_WAIT + 5):
             node._on_estimate(_estimate(k, ""))

@@ -446,10 +446,11 @@ class RegimeConfig(ParamSet):
         high=1000.0,
     )
     lag_samples: int = param(
-        0,
-        "0 publishes each sample's regime at once (causal); 1 publishes it when the next sample has come, given "
-        "that one too (one sample period later; hmm: a fixed-lag smoother of the phase; imm: the regime at the "
-        "sample's instant where a change fell inside a step of >= 5 s: eco driving at 10 s 81.9 -> 90.6 %)",
+        1,
+        "1 publishes each sample's regime when the next sample has come, given that one too (one sample period "
+        "later, stamped with its own time; a fixed-lag smoother of one sample: hmm the phase, imm the regime, and "
+        "the regime at the sample's instant where a change fell inside a step of >= 5 s); 0 publishes it at once "
+        "(causal: eco driving at 10 s 81.9 % of samples right against 91.1 %, docs/estimator.md)",
         low=0,
         high=1,
     )

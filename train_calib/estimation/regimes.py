@@ -67,7 +67,14 @@ import numpy as np
 from ..regime_codes import BRAKING, COASTING, CRUISING, REGIME_NAMES, TRACTION, UNKNOWN  # noqa: F401 (re-exported)
 from .config import RegimeConfig
 from .regime_imm import ImmFilter
-from .regime_imm_smoother import CHANGE_RESIDUAL_STDS, ImmStep, imm_step_after, regime_at_changes, whole_run_labels
+from .regime_imm_smoother import (
+    CHANGE_RESIDUAL_STDS,
+    ImmStep,
+    imm_step_after,
+    regime_at_changes,
+    smoothed_labels,
+    whole_run_labels,
+)
 from .regime_model import (  # noqa: F401 (POWER_* re-exported)
     DEFAULT_W,
     LOG_SQRT_2PI,
@@ -115,6 +122,7 @@ class RegimeClassifier:
         "_log_switch",
         "_phase",
         "_prob",
+        "_revise_phase",
         "_revised",
         "_revised_regime",
         "_sigma",
@@ -154,6 +162,9 @@ class RegimeClassifier:
         self._known_log = math.log(cfg.known_coast_odds)
         self._w_rel = cfg.resistance_rel_std
         self._lagged = cfg.lag_samples > 0
+        # the phase is revised only where it is the regime (hmm); beside the imm it stays the paper's causal phase,
+        # which the features follow (validated causal: docs/estimator.md, Features)
+        self._revise_phase = self._lagged and cfg.method == "hmm"
         self._change_tolerance = CHANGE_RESIDUAL_STDS * math.sqrt(2.0) * cfg.imm_speed_noise_std
         self.reset()
 
@@ -162,7 +173,7 @@ class RegimeClassifier:
         self._prob: list[float] | None = None
         self._revised: int | None = None
         self._revised_regime: int | None = None
-        self._imm_history: list[tuple[ImmStep, int]] = []  # lag_samples 1, imm: the last imm steps and their labels
+        self._imm_history: list[ImmStep] = []  # lag_samples 1, imm: the last imm steps of an unbroken sequence
         self._phase = UNKNOWN
         if self._imm is not None:
             self._imm.reset()
@@ -174,17 +185,19 @@ class RegimeClassifier:
 
     @property
     def revised_previous(self) -> int | None:
-        """hmm with ``lag_samples`` 1: the regime of the previous moving sample given the last sample too (one step
-        of the backward recursion: a fixed-lag smoother of one sample); None when the last call did not inform it
-        (the last sample was not filtered -- standing, NaN, the rule -- or started a new sequence)."""
+        """``method: hmm`` with ``lag_samples`` 1: the regime of the previous moving sample given the last sample too
+        (one step of the backward recursion: a fixed-lag smoother of one sample); None when the last call did not
+        inform it (the last sample was not filtered -- standing, NaN, the rule -- or started a new sequence), and
+        always beside the imm (its phase stays causal)."""
         return self._revised
 
     @property
     def revised_previous_regime(self) -> int | None:
-        """imm with ``lag_samples`` 1: the regime at the previous sample's instant given the last sample too
-        (:func:`.regime_imm_smoother.regime_at_changes` over the last imm steps: where a change fell inside one of the
-        two long steps around it); None when the last call did not inform it (the last sample did not reach the imm,
-        or the previous one was not the imm's last)."""
+        """imm with ``lag_samples`` 1: the regime of the previous sample given the last sample too: the imm's mode
+        probabilities smoothed over one more step (:func:`.regime_imm_smoother.smoothed_labels` over the last imm
+        steps), then the regime at its instant where a change fell inside one of the two long steps around it
+        (:func:`.regime_imm_smoother.regime_at_changes`); None when the last call did not inform it (the last sample
+        did not reach the imm, or the previous one was not the imm's last)."""
         return self._revised_regime
 
     @property
@@ -304,11 +317,12 @@ class RegimeClassifier:
             history.clear()
         if step is None:
             return regime
-        history.append((step, regime))
+        history.append(step)
         del history[:-4]
-        if len(history) >= 3:
-            steps, labels = zip(*history)
-            self._revised_regime = regime_at_changes(steps, labels, self._change_tolerance)[-2]
+        if len(history) >= 2:  # a fixed-lag smoother of one sample, then the regime at the previous one's instant
+            cfg = self.config
+            labels = smoothed_labels(history, cfg.imm_mean_dwell, cfg.imm_switch_max)
+            self._revised_regime = regime_at_changes(history, labels, self._change_tolerance)[-2]
         return regime
 
     def _step_track_force(self, position: float | None, integral: float | None) -> float | None:
@@ -375,7 +389,7 @@ class RegimeClassifier:
             keep, switch = self._keep, self._switch  # P(i -> j) = keep [i == j] + switch
             q0, q1, q2, q3 = prev
             p0, p1, p2, p3 = q0 * keep + switch, q1 * keep + switch, q2 * keep + switch, q3 * keep + switch
-            if self._lagged:  # the previous sample given this one: p_prev * (A l), A = keep I + switch
+            if self._revise_phase:  # the previous sample given this one: p_prev * (A l), A = keep I + switch
                 common = switch * sum((k0, k1, k2, k3))
                 self._revised = most_probable(*(p * (keep * lk + common) for p, lk in zip(prev, (k0, k1, k2, k3))))
         p0, p1, p2, p3 = p0 * k0, p1 * k1, p2 * k2, p3 * k3
@@ -430,11 +444,13 @@ def classify_regimes(
     optional per-sample ``power`` (POWER_*; None or negative: not measured), ``track_force``, ``position`` and
     ``track_force_integral`` as ``classify`` takes them (the pipeline's labels sample for sample).
     ``phase``: return (regimes, phases), the phases as :attr:`RegimeClassifier.phase` (with ``hmm`` and ``rule``
-    the regimes themselves).
+    the regimes themselves). ``lag_samples`` 1 (the default; ``hmm`` and ``imm``, not ``smooth``): each sample's
+    labels as regime_node publishes them one sample late, revised with the next sample
+    (:attr:`RegimeClassifier.revised_previous`, :attr:`RegimeClassifier.revised_previous_regime`).
     """
     cfg = config if config is not None else RegimeConfig()
     e, a = np.broadcast_arrays(np.asarray(effort, dtype=float), np.asarray(acceleration, dtype=float))
-    if cfg.method == "imm":
+    if cfg.method == "imm" or (cfg.method == "hmm" and cfg.lag_samples > 0 and not smooth):
         extra = (power, track_force, position, track_force_integral)
         out, phases = _classify_each(e, a, cfg, speed, effort_known, opposing_force, speed_measured, time, extra,
                                      smooth)  # fmt: skip
@@ -462,8 +478,12 @@ def _classify_each(e, a, cfg, speed, effort_known, opposing_force, speed_measure
                    smooth=False):  # fmt: skip
     """``imm``: RegimeClassifier.classify per sample in order; (regimes, phases) of e's shape. ``extra``: power
     (POWER_*; None or a negative value: not measured), track_force, position, track_force_integral, or None each.
-    ``smooth``: the regimes the imm gave are replaced by the whole-run ones (:mod:`.regime_imm_smoother`)."""
+    ``smooth``: the regimes the imm gave are replaced by the whole-run ones (:mod:`.regime_imm_smoother`); else,
+    with ``lag_samples`` 1, each sample's labels revised with the next one as ``pipeline.RegimeStream`` does.
+    ``hmm`` (with ``lag_samples`` 1) too: the regime is then the phase."""
     clf = RegimeClassifier(cfg)
+    lagged = cfg.lag_samples > 0 and not smooth
+    regime_is_phase = cfg.method == "hmm"
     imm = clf._imm
     steps: list[ImmStep] = []
     stepped: list[int] = []
@@ -486,6 +506,15 @@ def _classify_each(e, a, cfg, speed, effort_known, opposing_force, speed_measure
         out[i] = clf.classify(ei, ai, v, effort_known=known, opposing_force=w, speed_measured=z, time=t, power=pw,
                               track_force=g, position=s, track_force_integral=gam)  # fmt: skip
         phases[i] = clf.phase
+        if lagged and i > 0:
+            revised = clf.revised_previous
+            if revised is not None:
+                phases[i - 1] = revised
+                if regime_is_phase:
+                    out[i - 1] = revised
+            revised_regime = clf.revised_previous_regime
+            if revised_regime is not None:
+                out[i - 1] = revised_regime
         if before is not None:
             step = imm_step_after(imm, *before, *clf._imm_input)
             if step is not None:
