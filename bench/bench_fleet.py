@@ -14,7 +14,8 @@ written once to --out (2 units x 2 runs each; a manifest lists them again and ag
   per bag, the mean over the bags; and ``run_bag`` and ``process_run`` whole (their excess over the sum is the
   glue between the stages and the cache misses of running them interleaved).
 - Scaling: ``run_fleet`` on a LocalCluster of 1 and of 2 worker processes (started before the clock runs), --runs
-  runs at 1 Hz: the ratio of the rates.
+  runs at 1 Hz: the ratio of the rates, and this process's CPU per run (the client, the scheduler and the nannies
+  run in it and, on 2 cores, compete with 2 workers).
 - Local vs Dask: the serial loop (no Dask) against 1 Dask worker on the same runs: the overhead per run, and the
   rows compared (equal but for the timing column).
 - Worker growth: --growth-runs runs at 10 s through ``run_fleet`` on a LocalCluster of 1 worker, with Dask's
@@ -197,8 +198,9 @@ def stages(src: Path, repeat: int) -> dict[str, float]:
     return total
 
 
-def fleet_rate(rows: list, workers: int, out: Path) -> tuple[float, Path]:
-    """Runs/s of run_fleet on a LocalCluster of ``workers`` processes (cluster start not counted)."""
+def fleet_rate(rows: list, workers: int, out: Path) -> tuple[float, Path, float]:
+    """Runs/s of run_fleet on a LocalCluster of ``workers`` processes (cluster start not counted), the runs.parquet,
+    and this process's CPU ms per run (the client, the scheduler and the nannies live here)."""
     from distributed import Client
 
     from train_calib.fleet.runner import connect
@@ -207,14 +209,14 @@ def fleet_rate(rows: list, workers: int, out: Path) -> tuple[float, Path]:
     try:
         client.run(lambda: __import__("train_calib.pipeline"))  # workers import before the clock
         run_fleet(rows[: 2 * workers], out / f"warm{workers}", Cluster(workers=workers), client=client)
-        t = time.perf_counter()
+        t, cpu = time.perf_counter(), time.process_time()
         run_fleet(rows, out / f"w{workers}", Cluster(workers=workers), client=client)
-        dt = time.perf_counter() - t
+        dt, dcpu = time.perf_counter() - t, time.process_time() - cpu
     finally:
         client.close()
         local.close()
     assert isinstance(client, Client)
-    return len(rows) / dt, out / f"w{workers}" / "runs.parquet"
+    return len(rows) / dt, out / f"w{workers}" / "runs.parquet", 1000 * dcpu / len(rows)
 
 
 def serial(rows: list, out: Path) -> tuple[float, Path]:
@@ -325,17 +327,17 @@ def main() -> int:
     if "scaling" in parts:
         rows = read_manifest(manifest(src[1.0], args.runs, args.out / "scaling.csv"))
         rate_serial, serial_path = serial(rows, args.out / "serial")
-        rate1, path1 = fleet_rate(rows, 1, args.out)
-        rate2, path2 = fleet_rate(rows, 2, args.out)
+        rate1, path1, parent1 = fleet_rate(rows, 1, args.out)
+        rate2, path2, parent2 = fleet_rate(rows, 2, args.out)
         a = pd.read_parquet(serial_path).drop(columns=list(TIMING_COLUMNS))
         same = all(a.equals(pd.read_parquet(p).drop(columns=list(TIMING_COLUMNS))) for p in (path1, path2))
         report["scaling_1hz"] = {"runs": len(rows), "serial_runs_per_s": rate_serial, "dask1_runs_per_s": rate1,
                                  "dask2_runs_per_s": rate2, "speedup_2_vs_1": rate2 / rate1,
                                  "dask_overhead_ms_per_run": 1000 * (1 / rate1 - 1 / rate_serial),
-                                 "rows_equal": same}  # fmt: skip
+                                 "parent_cpu_ms_per_run": {"1": parent1, "2": parent2}, "rows_equal": same}  # fmt: skip
         print(f"1 Hz, {len(rows)} runs: serial {rate_serial:.2f} runs/s, dask 1 worker {rate1:.2f}, 2 workers "
               f"{rate2:.2f} (x{rate2 / rate1:.2f}); dask overhead {1000 * (1 / rate1 - 1 / rate_serial):+.1f} ms/run; "
-              f"rows equal: {same}")  # fmt: skip
+              f"this process's CPU {parent1:.1f} / {parent2:.1f} ms/run; rows equal: {same}")  # fmt: skip
         if "per_core" in parts:
             r1 = report["per_core_1s"]["runs_per_s_per_core"]  # type: ignore[index]
             eff = (rate2 / rate1) / 2

@@ -3,7 +3,10 @@
 Both ways of running go through Dask distributed, so they share every line but the client: local processes
 (a ``LocalCluster`` of ``--workers`` single-threaded worker processes, on 127.0.0.1) or an existing cluster
 (``--scheduler tcp://HOST:PORT`` or ``tls://HOST:PORT`` with the CA, certificate and key that ``dask scheduler``
-and ``dask worker`` take). At most ``window`` runs are in flight; each finished row waits in a reorder buffer
+and ``dask worker`` take). Consecutive runs go to a worker together, as one Dask task of ``runs_per_task`` runs
+(by default as many as take about ``TASK_SECONDS`` by the runs computed so far: the client and the scheduler spend
+a few ms per task in this process, which on a small machine competes with the workers). At most ``window`` runs
+are in flight; each finished row waits in a reorder buffer
 until every earlier manifest line is written, so the rows are in manifest order whoever computed them, and
 memory is bounded by the window (never by the manifest). Rows are written in row groups to part files
 (``runs.parts/NNNNNN.parquet``, each closed when written, so an interrupted fleet keeps what it finished); at the
@@ -41,12 +44,35 @@ RUNS = "runs.parquet"
 PARTS = "runs.parts"
 
 
-WORKER_CONFIG = {"distributed.worker.profile.enabled": False}
-"""Dask configuration of the local workers. Dask's statistical profiler samples every worker thread's stack each
-10 ms and keeps one call tree per 1 s cycle for the last ``distributed.admin.low-level-log-length`` (1000) cycles,
-twice (``profile_history``, ``profile_keys_history``): a worker running the pipeline grew by ~18 MB a minute for
-its first 1000 s (181 -> 347 MB in bench_fleet's 10,000 runs), then stayed there. Off here; on a ``dask worker``
-cluster, start the workers with ``DASK_DISTRIBUTED__WORKER__PROFILE__ENABLED=False`` (docs/fleet.md)."""
+TASK_SECONDS = 1.0
+"""Default size of a task: about this many worker seconds of runs (from the mean of the runs computed so far; one
+run per task until the first has come back). The client and the scheduler spend about 5 ms of this process's CPU
+per task (bench_fleet: parent CPU); at 1 Hz (0.1 s a run) one run per task cost 12 ms a run in this process, so on
+2 cores 2 workers reached only ~1.8x one."""
+MAX_RUNS_PER_TASK = 32
+"""At most this many runs in one task (a worker that dies redoes no more than these)."""
+
+
+def run_chunk(task: Callable[[dict[str, Any]], dict[str, Any]], jobs: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """What a worker runs per Dask task: ``task`` on each job of consecutive manifest rows, in order."""
+    return [task(job) for job in jobs]
+
+
+WORKER_CONFIG = {
+    "distributed.worker.profile.enabled": False,
+    "distributed.admin.tick.interval": "1s",
+    "distributed.admin.system-monitor.interval": "5s",
+    "distributed.worker.memory.monitor-interval": "1s",
+}
+"""Dask configuration of the local cluster (scheduler, nannies, workers and client). Dask's statistical profiler
+samples every worker thread's stack each 10 ms and keeps one call tree per 1 s cycle for the last
+``distributed.admin.low-level-log-length`` (1000) cycles, twice (``profile_history``, ``profile_keys_history``): a
+worker running the pipeline grew by ~18 MB a minute for its first 1000 s (181 -> 347 MB in bench_fleet's 10,000
+runs), then stayed there. Off here; on a ``dask worker`` cluster, start the workers with
+``DASK_DISTRIBUTED__WORKER__PROFILE__ENABLED=False`` (docs/fleet.md). The event loops' health check (every 20 ms),
+the system monitor (every 500 ms, for the dashboard, which a local fleet does not serve) and the nannies' memory
+check (every 100 ms) cost an idle 2-worker cluster 4.2 % of a core in this process and 3.6 % in the workers; at
+1 s, 5 s and 1 s, 0.8 % and 0.7 % (the memory limits are still checked, each second)."""
 
 
 class FleetError(TrainCalibError):
@@ -135,7 +161,7 @@ def connect(cluster: Cluster) -> tuple[Any, Any]:
             dashboard_address=None,  # no HTTP server (docs/fleet.md): 3.8 -> 2.5 % of a core idle in this process
             silence_logs=logging.ERROR,
         )
-    return Client(local, set_as_default=False), local
+        return Client(local, set_as_default=False), local
 
 
 class ResumeIndex:
@@ -232,12 +258,15 @@ def run_fleet(
     client: Any = None,
     task: Callable[[dict[str, Any]], dict[str, Any]] = process_run,
     params: FleetParams | None = None,
+    runs_per_task: int | None = None,
 ) -> FleetResult:
     """Every manifest row through :func:`process_run`, rows streamed to ``out/runs.parquet`` in manifest order.
     ``on_row(row, result)`` is called after each row is written (progress, tests). ``client``: an existing Dask
     client to use instead of connecting (tests). ``task``: what a worker runs per job (tests wrap
     :func:`process_run` to hold a run; it must be importable on the workers). ``params``: a checked
-    ``--params-file`` (:func:`params.load_fleet_params`), applied to every run and part of its key."""
+    ``--params-file`` (:func:`params.load_fleet_params`), applied to every run and part of its key.
+    ``runs_per_task``: consecutive runs per Dask task (None: about ``TASK_SECONDS`` of runs, see the module);
+    ``window`` None: 4 tasks in flight per worker thread (at least 16 runs)."""
     from distributed import as_completed
 
     if client is None:
@@ -266,12 +295,17 @@ def run_fleet(
             info = state["client"].scheduler_info()
             result.workers = sum(w.get("nthreads", 1) for w in info.get("workers", {}).values())
             state["pending"] = as_completed(loop=state["client"].loop)
-            if window is None:  # 4 runs in flight per worker thread, whatever the cluster
-                state["window"] = max(16, 4 * result.workers)
+            state["threads"] = result.workers
         return state["pending"]
 
+    def in_flight_limit() -> int:
+        """Runs that may be submitted ahead of the next row to write: 4 tasks per worker thread."""
+        return window or max(16, 4 * state["threads"] * state["chunk"])
+
     try:
-        state["window"] = window or max(16, 4 * (cluster.workers or os.cpu_count() or 1))
+        state["threads"] = cluster.workers or os.cpu_count() or 1
+        state["chunk"] = runs_per_task or 1
+        computed_seconds = 0.0
         buffer: dict[int, dict[str, Any]] = {}
         index_of: dict[str, int] = {}
         next_submit = 0
@@ -279,24 +313,32 @@ def run_fleet(
         in_flight = 0
         n = len(rows)
         while next_write < n:
-            while next_submit < n and next_submit < next_write + state["window"]:
-                row = rows[next_submit]
-                next_submit += 1
-                job = row.columns() | {"date_s": row.date_s, "bag_path": row.bag_path,
-                                       "track_path": row.track_path, "train_path": row.train_path}  # fmt: skip
-                if params is not None and params.sha256:
-                    job |= {"configs": params.configs, "params_sha256": params.sha256}
-                if previous is not None and previous.where:
-                    old = _reuse(previous, job)
-                    if old is not None:
-                        buffer[row.index] = old
-                        result.resumed += 1
-                        continue
+            while next_submit < n and next_submit < next_write + in_flight_limit():
+                jobs: list[dict[str, Any]] = []
+                indices: list[int] = []
+                while next_submit < n and len(jobs) < state["chunk"] and next_submit < next_write + in_flight_limit():
+                    row = rows[next_submit]
+                    next_submit += 1
+                    job = row.columns() | {"date_s": row.date_s, "bag_path": row.bag_path,
+                                           "track_path": row.track_path, "train_path": row.train_path}  # fmt: skip
+                    if params is not None and params.sha256:
+                        job |= {"configs": params.configs, "params_sha256": params.sha256}
+                    if previous is not None and previous.where:
+                        old = _reuse(previous, job)
+                        if old is not None:
+                            buffer[row.index] = old
+                            result.resumed += 1
+                            continue
+                    jobs.append(job)
+                    indices.append(row.index)
+                if not jobs:
+                    continue
                 pending = pending_set()
                 future = state["client"].submit(
-                    task, job, key=f"fleet-run-{row.index}-{os.getpid()}-{start_ns}", pure=False
-                )
-                index_of[future.key] = row.index
+                    run_chunk, task, jobs, key=f"fleet-runs-{indices[0]}-{len(jobs)}-{os.getpid()}-{start_ns}",
+                    pure=False,
+                )  # fmt: skip
+                index_of[future.key] = indices
                 pending.add(future)
                 in_flight += 1
             while next_write in buffer:
@@ -311,13 +353,18 @@ def run_fleet(
                 continue
             future = next(state["pending"])
             in_flight -= 1
-            index = index_of.pop(future.key)
-            row_out = _collect(future, rows[index])
+            indices = index_of.pop(future.key)
+            rows_out = _collect(future, [rows[i] for i in indices])
             future.release()
-            if index >= next_write and index not in buffer:  # written once, by manifest index
-                buffer[index] = row_out
-                result.computed += 1
-                result.worker_seconds += row_out.get("seconds") or 0.0
+            for index, row_out in zip(indices, rows_out):
+                if index >= next_write and index not in buffer:  # written once, by manifest index
+                    buffer[index] = row_out
+                    result.computed += 1
+                    result.worker_seconds += row_out.get("seconds") or 0.0
+                    computed_seconds += row_out.get("seconds") or 0.0
+            if runs_per_task is None and result.computed and computed_seconds > 0.0:
+                per_run = computed_seconds / result.computed
+                state["chunk"] = max(1, min(MAX_RUNS_PER_TASK, round(TASK_SECONDS / per_run)))
         writer.close(out / RUNS)
     except BaseException:
         if not any(parts.glob("*.parquet")):  # nothing done: leave DIR as it was
@@ -348,16 +395,15 @@ def _reuse(previous: ResumeIndex, job: dict[str, Any]) -> dict[str, Any] | None:
     return old | {name: job[name] for name in MANIFEST_COLUMNS}
 
 
-def _collect(future: Any, row: ManifestRow) -> dict[str, Any]:
-    """The row a future gives; a run that could not be computed (its workers died) is an error row."""
+def _collect(future: Any, rows: list[ManifestRow]) -> list[dict[str, Any]]:
+    """The rows a task's future gives; runs that could not be computed (their workers died) are error rows."""
     from .row import empty_result, one_line
 
     try:
         return future.result()
     except Exception as exc:
-        out = row.columns() | {"date_s": row.date_s} | empty_result()
-        out |= {"status": "error", "error": one_line(exc)}
-        return out
+        error = {"status": "error", "error": one_line(exc)}
+        return [row.columns() | {"date_s": row.date_s} | empty_result() | error for row in rows]
 
 
 def iter_rows(path: str | Path, columns: list[str] | None = None) -> Iterator[dict[str, Any]]:
