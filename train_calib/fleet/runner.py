@@ -13,8 +13,8 @@ memory is bounded by the window (never by the manifest). Rows are written in row
 end the parts are concatenated into ``runs.parquet`` and removed.
 
 A worker that dies mid-run: the scheduler gives its runs to another worker (Dask's own recovery); a run's row is
-written once, by its manifest index, so a run computed twice cannot give two rows. A run whose workers died
-``distributed.scheduler.allowed-failures`` times becomes an error row.
+written once, by its manifest index, so a run computed twice cannot give two rows. The runs of a task whose
+workers died ``distributed.scheduler.allowed-failures`` times become error rows.
 
 ``--resume``: the rows of ``runs.parquet`` and of leftover part files with status "ok" are reused for manifest
 lines whose run key (content hash of bag, track and train) they carry; only those runs are not computed again.
