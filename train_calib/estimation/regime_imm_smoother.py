@@ -29,7 +29,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 from ..regime_codes import COASTING, CRUISING
 from .regime_imm import ImmFilter, transition
@@ -124,6 +124,54 @@ def _acceleration(steps: Sequence[ImmStep], labels: Sequence[int], k: int, regim
         return None
     before, after = steps[neighbour - 1], steps[neighbour]
     return (after.speed - before.speed) / (after.t - before.t)
+
+
+class OneSampleLate:
+    """``lag_samples`` 1 on board: the regime of the sample before the last, given the last too. A fixed-lag
+    smoother of one sample (the backward step of :func:`smoothed_labels` from the last imm step), then the regime
+    at the sample's instant (:func:`regime_at_changes`) where both steps around it are long; over the last four imm
+    steps of an unbroken sequence. ``config``: a RegimeConfig (imm_mean_dwell, imm_switch_max,
+    imm_speed_noise_std)."""
+
+    __slots__ = ("_dt", "_history", "_mean_dwell", "_switch_max", "_tolerance", "_transition")
+
+    def __init__(self, config: Any) -> None:
+        self._mean_dwell, self._switch_max = config.imm_mean_dwell, config.imm_switch_max
+        self._tolerance = CHANGE_RESIDUAL_STDS * math.sqrt(2.0) * config.imm_speed_noise_std
+        self._history: list[ImmStep] = []
+        self._dt = math.nan  # the last step's dt (s) and its transition (stay, off), reused while dt repeats
+        self._transition = (1.0, 0.0)
+
+    def clear(self) -> None:
+        """A sample that did not reach the imm: the next sequence starts over."""
+        self._history.clear()
+
+    def push(self, step: ImmStep) -> int | None:
+        """Take the imm's latest step; the revised regime code of the one before it (None: there is none in this
+        sequence)."""
+        history = self._history
+        if step.restarted:
+            history.clear()
+        history.append(step)
+        del history[:-4]
+        if len(history) < 2:
+            return None
+        before, last = history[-2], history[-1]
+        if len(history) >= 3 and min(last.t - before.t, before.t - history[-3].t) >= LONG_STEP_S:
+            labels = smoothed_labels(history, self._mean_dwell, self._switch_max)
+            return regime_at_changes(history, labels, self._tolerance)[-2]
+        # regime_at_changes would keep the label: smoothed_labels(history[-2:])[0], written out (once per sample)
+        dt = last.t - before.t
+        if dt != self._dt:
+            self._dt, self._transition = dt, transition(dt, self._mean_dwell, self._switch_max)
+        stay, off = self._transition
+        keep = stay - off
+        f0, f1, f2, f3 = before.probabilities
+        m0, m1, m2, m3 = last.probabilities
+        c0, c1 = m0 / (off + keep * f0), m1 / (off + keep * f1)
+        c2, c3 = m2 / (off + keep * f2), m3 / (off + keep * f3)
+        b0, b1, b2, b3 = backward_message(c0, c1, c2, c3, keep, off)
+        return most_probable(f0 * b0, f1 * b1, f2 * b2, f3 * b3)
 
 
 def imm_step_after(

@@ -67,14 +67,7 @@ import numpy as np
 from ..regime_codes import BRAKING, COASTING, CRUISING, REGIME_NAMES, TRACTION, UNKNOWN  # noqa: F401 (re-exported)
 from .config import RegimeConfig
 from .regime_imm import ImmFilter
-from .regime_imm_smoother import (
-    CHANGE_RESIDUAL_STDS,
-    ImmStep,
-    imm_step_after,
-    regime_at_changes,
-    smoothed_labels,
-    whole_run_labels,
-)
+from .regime_imm_smoother import ImmStep, OneSampleLate, imm_step_after, whole_run_labels
 from .regime_model import (  # noqa: F401 (POWER_* re-exported)
     DEFAULT_W,
     LOG_SQRT_2PI,
@@ -83,6 +76,7 @@ from .regime_model import (  # noqa: F401 (POWER_* re-exported)
     POWER_TRACTION,
     SQRT2,
     START_PRIOR,
+    backward_message,
     log_erfc,
     most_probable,
     power_state,
@@ -105,11 +99,9 @@ class RegimeClassifier:
     __slots__ = (
         "_b_hi",
         "_b_lo",
-        "_change_tolerance",
         "_g_prev",
         "_hmm",
         "_imm",
-        "_imm_history",
         "_imm_input",
         "_imm_streak",
         "_keep",
@@ -120,6 +112,7 @@ class RegimeClassifier:
         "_log_norm",
         "_log_stay",
         "_log_switch",
+        "_one_late",
         "_phase",
         "_prob",
         "_revise_phase",
@@ -165,7 +158,6 @@ class RegimeClassifier:
         # the phase is revised only where it is the regime (hmm); beside the imm it stays the paper's causal phase,
         # which the features follow (validated causal: docs/estimator.md, Features)
         self._revise_phase = self._lagged and cfg.method == "hmm"
-        self._change_tolerance = CHANGE_RESIDUAL_STDS * math.sqrt(2.0) * cfg.imm_speed_noise_std
         self.reset()
 
     def reset(self) -> None:
@@ -173,7 +165,7 @@ class RegimeClassifier:
         self._prob: list[float] | None = None
         self._revised: int | None = None
         self._revised_regime: int | None = None
-        self._imm_history: list[ImmStep] = []  # lag_samples 1, imm: the last imm steps of an unbroken sequence
+        self._one_late = OneSampleLate(self.config)  # lag_samples 1, imm: the last imm steps
         self._phase = UNKNOWN
         if self._imm is not None:
             self._imm.reset()
@@ -255,7 +247,7 @@ class RegimeClassifier:
         if self._lagged:  # lag_samples 1: the imm history holds only an unbroken run of imm steps
             streak, self._imm_streak = self._imm_streak, False  # did the previous call reach the imm?
             if not streak:
-                self._imm_history.clear()
+                self._one_late.clear()
         self._phase = UNKNOWN
         # (each value as a float: ``to_float``, called only where it is not one already: this runs once a sample)
         e = effort if type(effort) is float else to_float(effort)
@@ -312,17 +304,10 @@ class RegimeClassifier:
         regime = imm.step(t, z, w, power)
         self._imm_streak = True
         step = imm_step_after(imm, *before, z, w)
-        history = self._imm_history
-        if step is None or step.restarted:
-            history.clear()
         if step is None:
+            self._one_late.clear()
             return regime
-        history.append(step)
-        del history[:-4]
-        if len(history) >= 2:  # a fixed-lag smoother of one sample, then the regime at the previous one's instant
-            cfg = self.config
-            labels = smoothed_labels(history, cfg.imm_mean_dwell, cfg.imm_switch_max)
-            self._revised_regime = regime_at_changes(history, labels, self._change_tolerance)[-2]
+        self._revised_regime = self._one_late.push(step)
         return regime
 
     def _step_track_force(self, position: float | None, integral: float | None) -> float | None:
