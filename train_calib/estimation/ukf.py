@@ -55,6 +55,7 @@ from scipy.stats import chi2
 
 from ..measurement import Measurement
 from ..train import Davis, TrainSpec
+from . import ukf_fast
 from .coast_regression import POWER_DRIVE, POWER_NONE, POWER_UNKNOWN, CoastRegression, CoastSettings
 from .config import UKFConfig
 from .covariance import cholesky, project_nonnegative, repair, unpack
@@ -71,7 +72,6 @@ from .records import (
     EstimateSample,
 )
 from .safeguards import SafeguardConfig
-from .ukf_fast import common_step
 from .ukf_fast import eligible as common_eligible
 
 _NONNEG = (1, 2, 3, 4)  # v, r0, r1, r2
@@ -325,6 +325,7 @@ class ResistanceEstimator:
         self._nis_limit = _nis_limits(cfg.nis_quantile, cfg.nis_window)
         self._nis_window = cfg.nis_window
         self._common = common_eligible(self)  # the common step by ukf_fast.common_step
+        self._common_step = ukf_fast.common_step  # the C kernel's, or the Python one without it
         self._gate = _chi2_quantile(cfg.known_effort_gate, 1) if cfg.known_effort_gate < 1.0 else math.inf
         self._position_gate = _chi2_quantile(guard.position_gate, 1) if guard.position_gate < 1.0 else math.inf
         self._relock_ns = int(guard.gate_relock_time * 1e9)
@@ -663,7 +664,7 @@ class ResistanceEstimator:
         a_obs = self._slope.push(t, m.v)
         rs, rv = (m.s_variance, m.v_variance) if cfg.use_measurement_variance else (self._rs, self._rv)
         if self._common and dt > 0.0:  # the fast path of the common step (ukf_fast); None: this chain
-            common = common_step(self, m, dt, a_obs, rs, rv)
+            common = self._common_step(self, m, dt, a_obs, rs, rv)
             if common is not None:
                 return self._common_result(m, dt, a_obs, *common)
         if dt > 0.0:
