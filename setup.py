@@ -39,8 +39,8 @@ KERNEL = Extension(
     extra_compile_args=["-O2", "-std=c99", "-ffp-contract=off", "-Wall", "-Wextra"],
     optional=True,
 )
-# The UKF stage's C kernel (train_calib/estimation/_ukf_kernel.c: the filter's common step, the coast detection's
-# candidates): optional likewise, ukf_fast.py and coast_regression.py keep the Python paths; the same flags
+# The UKF stage's C kernel (train_calib/estimation/_ukf_kernel.c: the filter's common step, the coast regression's
+# push and candidates, the speed slope): optional likewise, the Python paths stay beside it; the same flags
 UKF_KERNEL = Extension(
     f"{PACKAGE}.estimation._ukf_kernel",
     [f"{PACKAGE}/estimation/_ukf_kernel.c"],
