@@ -13,6 +13,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from build_context import ukf_kernel_skip_reason
+
+if ukf_kernel_skip_reason():  # colcon test: the source tree without the kernel colcon built into install/
+    pytest.skip(ukf_kernel_skip_reason(), allow_module_level=True)
+
 from estimation_cases import simulated_run
 from test_fast_paths import CONFIGS, same_float, same_result, step_inputs
 
