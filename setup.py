@@ -39,13 +39,21 @@ KERNEL = Extension(
     extra_compile_args=["-O2", "-std=c99", "-ffp-contract=off", "-Wall", "-Wextra"],
     optional=True,
 )
+# The UKF stage's C kernel (train_calib/estimation/_ukf_kernel.c: the filter's common step, the coast regression's
+# push and candidates, the speed slope): optional likewise, the Python paths stay beside it; the same flags
+UKF_KERNEL = Extension(
+    f"{PACKAGE}.estimation._ukf_kernel",
+    [f"{PACKAGE}/estimation/_ukf_kernel.c"],
+    extra_compile_args=["-O2", "-std=c99", "-ffp-contract=off", "-Wall", "-Wextra"],
+    optional=True,
+)
 
 
 setup(
     name=PACKAGE,
     version="0.1.0",
     packages=find_packages(include=[PACKAGE, f"{PACKAGE}.*"]),
-    ext_modules=[KERNEL],
+    ext_modules=[KERNEL, UKF_KERNEL],
     python_requires=">=3.10",
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),

@@ -205,10 +205,10 @@ def test_colcon_workspace_node_executables_start_and_log(workspace):
 
 
 def test_colcon_workspace_colcon_test_of_the_build_dependent_tests(workspace):
-    """`colcon test` runs the source tree's tests against the install: the kernel's tests skip, saying why."""
+    """`colcon test` runs the source tree's tests against the install: the kernels' tests skip, saying why."""
     ws, _ = workspace
     modules = ["test/window/test_window_kernel.py", "test/window/test_window_node.py", "test/nodes/test_config.py",
-               "test/test_package_xml.py"]  # fmt: skip
+               "test/test_package_xml.py", "test/estimation/test_ukf_kernel.py"]  # fmt: skip
     env = _clean_env(ws)
     script = "\n".join([
         f"source {VENV}/bin/activate", *recipe()["env"], *recipe()["source"],
@@ -225,6 +225,7 @@ def test_colcon_workspace_colcon_test_of_the_build_dependent_tests(workspace):
     errors, failures, _skipped, tests = map(int, summary.groups())
     assert errors == 0 and failures == 0 and tests > 10, done.stdout[-3000:]
     assert "test_window_kernel" in xml and "has no built C kernel" in xml, xml[:2000]
+    assert "test_ukf_kernel" in xml and "has no built C kernel of the UKF stage" in xml, xml[:2000]
 
 
 def test_rosdep_crawl_finds_both_packages_through_the_link(tmp_path):

@@ -2,8 +2,8 @@
 the tests of that part with ``-x -q`` there, and record whether the tests killed it (failed) or it survived.
 
 The working tree is never touched: each mutation gets a fresh copy of the files git knows (tracked and untracked,
-not ignored) in a temporary directory, with the built C kernel copied beside (a mutation of ``_kernel.c`` rebuilds
-it there), and the tests run with that copy first on PYTHONPATH.
+not ignored) in a temporary directory, with the built C kernels copied beside (a mutation of a ``.c`` file rebuilds
+them there), and the tests run with that copy first on PYTHONPATH.
 
     PYTHONPATH=. .venv/bin/python bench/mutation/run.py [--only NAME ...] [--jobs N] [--json PATH]
 """
@@ -26,11 +26,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from mutations import MUTATIONS, Mutation  # noqa: E402
 
-KERNEL_GLOB = "train_calib/window/_kernel*.so"
+KERNEL_GLOBS = ("train_calib/window/_kernel*.so", "train_calib/estimation/_ukf_kernel*.so")  # the built C kernels
 
 
 def copy_tree(dest: Path) -> None:
-    """The files git knows under ROOT (not ignored) and the built kernel, copied to ``dest``."""
+    """The files git knows under ROOT (not ignored) and the built kernels, copied to ``dest``."""
     listed = subprocess.run(
         ["git", "ls-files", "-co", "--exclude-standard", "-z"], cwd=ROOT, check=True, capture_output=True
     ).stdout.split(b"\0")
@@ -41,8 +41,9 @@ def copy_tree(dest: Path) -> None:
             continue  # the .venv link, deleted files
         (dest / rel).parent.mkdir(parents=True, exist_ok=True)
         shutil.copy2(src, dest / rel)
-    for so in ROOT.glob(KERNEL_GLOB):
-        shutil.copy2(so, dest / so.relative_to(ROOT))
+    for pattern in KERNEL_GLOBS:
+        for so in ROOT.glob(pattern):
+            shutil.copy2(so, dest / so.relative_to(ROOT))
 
 
 def apply(m: Mutation, tree: Path) -> None:

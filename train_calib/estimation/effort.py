@@ -14,6 +14,11 @@ from collections import deque
 
 from ..train import TrainSpec
 
+try:
+    from . import _ukf_kernel  # SpeedSlope.push in C (setup.py builds it where a C compiler is found)
+except ImportError:  # pragma: no cover - built without a compiler: the Python push
+    _ukf_kernel = None
+
 
 class SpeedSlope:
     """Causal linear-fit slope of measured speed over a time window (m/s^2), O(1) per sample.
@@ -44,7 +49,15 @@ class SpeedSlope:
         return pts[-1][0] - pts[0][0] if len(pts) > 1 else 0.0
 
     def push(self, t: float, v: float) -> float:
-        """Add the sample (t in s, v in m/s) and return the slope over the window (0 with one sample)."""
+        """Add the sample (t in s, v in m/s) and return the slope over the window (0 with one sample): in C where the
+        package was built with a compiler (``_ukf_kernel.slope_push``, :meth:`push_python`'s operations), else
+        :meth:`push_python`."""
+        if _ukf_kernel is not None:
+            return _ukf_kernel.slope_push(self, t, v)
+        return self.push_python(t, v)
+
+    def push_python(self, t: float, v: float) -> float:
+        """:meth:`push` in Python (the C kernel's reference)."""
         pts = self._points
         if not pts:
             self._t_ref = t

@@ -47,7 +47,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from functools import lru_cache
+from functools import lru_cache, partial
 from typing import NamedTuple
 
 import numpy as np
@@ -55,6 +55,7 @@ from scipy.stats import chi2
 
 from ..measurement import Measurement
 from ..train import Davis, TrainSpec
+from . import ukf_fast
 from .coast_regression import POWER_DRIVE, POWER_NONE, POWER_UNKNOWN, CoastRegression, CoastSettings
 from .config import UKFConfig
 from .covariance import cholesky, project_nonnegative, repair, unpack
@@ -71,7 +72,6 @@ from .records import (
     EstimateSample,
 )
 from .safeguards import SafeguardConfig
-from .ukf_fast import common_step
 from .ukf_fast import eligible as common_eligible
 
 _NONNEG = (1, 2, 3, 4)  # v, r0, r1, r2
@@ -166,6 +166,12 @@ class StepInput(NamedTuple):
                    float(m.power_regenerated), float(m.tunnel_fraction), float(m.track_force_integral))  # fmt: skip
 
 
+_step_input = (
+    partial(ukf_fast._ukf_kernel.step_input, StepInput) if ukf_fast.KERNEL_AVAILABLE else StepInput.from_measurement
+)
+"""StepInput.from_measurement, in C where the package was built with a compiler (``_ukf_kernel.step_input``)."""
+
+
 class StepResult(NamedTuple):
     """The published estimate after one measurement (:meth:`ResistanceEstimator.process`), SI units."""
 
@@ -185,6 +191,13 @@ class StepResult(NamedTuple):
     input_effort: float  # the effort u the prediction used, N/kg
     decoupled: bool  # the prediction used r at its mean (consider step)
     covariance: tuple[float, ...]  # packed upper triangle over (s, v, r0, r1, r2), covariance.UPPER_INDEX
+
+
+if ukf_fast.KERNEL_AVAILABLE:  # what the kernel's process_common needs of this module
+    ukf_fast._ukf_kernel.configure(
+        StepInput, StepResult, MAX_SPEED, MAX_TRACK_FORCE, MAX_POSITION, MAX_POWER, *VARIANCE_RANGE, HEALTH_OK,
+        EFFORT_COMPUTED,
+    )  # fmt: skip
 
 
 class TraceStep(NamedTuple):
@@ -325,6 +338,9 @@ class ResistanceEstimator:
         self._nis_limit = _nis_limits(cfg.nis_quantile, cfg.nis_window)
         self._nis_window = cfg.nis_window
         self._common = common_eligible(self)  # the common step by ukf_fast.common_step
+        self._common_step = ukf_fast.common_step  # the C kernel's, or the Python one without it
+        # a common sample's whole process() in C (the kernel's process_common; None: the Python process alone)
+        self._process_kernel = ukf_fast._ukf_kernel.process_common if ukf_fast.KERNEL_AVAILABLE else None
         self._gate = _chi2_quantile(cfg.known_effort_gate, 1) if cfg.known_effort_gate < 1.0 else math.inf
         self._position_gate = _chi2_quantile(guard.position_gate, 1) if guard.position_gate < 1.0 else math.inf
         self._relock_ns = int(guard.gate_relock_time * 1e9)
@@ -405,7 +421,7 @@ class ResistanceEstimator:
     def update(self, m: Measurement) -> EstimateSample:
         """Process one measurement; returns the estimate after it."""
         s, v, r0, r1, r2, effort, accel, resistance, g, nis, source, health, dt, u, _, cov = self.process(
-            StepInput.from_measurement(m)
+            _step_input(m)
         )
         # positional, in EstimateSample's field order (stamp_ns, run_id, s, v, r0, r1, r2, covariance, effort,
         # acceleration, resistance, track_force, nis, effort_known, health, dt, input_effort, v_measured,
@@ -582,7 +598,17 @@ class ResistanceEstimator:
     def process(self, m: StepInput) -> StepResult:
         """Process one measurement (``update`` without building the EstimateSample): reject or repair the input,
         start a run or restart after a gap, else one filter step (effort, prediction, update, safeguards,
-        look-ahead bookkeeping). Returns the estimate after it."""
+        look-ahead bookkeeping). Returns the estimate after it.
+
+        A common sample (used as it is, the run going on, 0 < dt <= max_dt, the common step configured) is processed
+        in C where the package was built with a compiler (``_ukf_kernel.process_common``: this method, ``_step`` and
+        ``_common_result`` step for step, calling back here where they do something else); the kernel returns None
+        for every other sample, nothing changed, and this method runs."""
+        kernel = self._process_kernel
+        if kernel is not None:
+            out = kernel(self, m)
+            if out is not None:
+                return out
         self.counters["updates"] += 1
         self.rejected = self._rejection(m)
         if self.rejected is not None:
@@ -663,9 +689,13 @@ class ResistanceEstimator:
         a_obs = self._slope.push(t, m.v)
         rs, rv = (m.s_variance, m.v_variance) if cfg.use_measurement_variance else (self._rs, self._rv)
         if self._common and dt > 0.0:  # the fast path of the common step (ukf_fast); None: this chain
-            common = common_step(self, m, dt, a_obs, rs, rv)
+            common = self._common_step(self, m, dt, a_obs, rs, rv)
             if common is not None:
                 return self._common_result(m, dt, a_obs, *common)
+        return self._step_chain(m, dt, t, a_obs, rs, rv)
+
+    def _step_chain(self, m: StepInput, dt: float, t: float, a_obs: float, rs: float, rv: float) -> StepResult:
+        """``_step`` after the speed slope a_obs (m/s^2) at t (s) and the variances rs, rv: the readable chain."""
         if dt > 0.0:
             eff = self._predict_published(m, dt, a_obs, rv)
         else:
@@ -804,16 +834,20 @@ class ResistanceEstimator:
         ``nis_reset_windows`` windows of it. Returns (health, NIS, NIS reset)."""
         nis_reset = False
         if self._nis_push(nis, dof):
-            self._degraded_steps += 1
-            if self._nis_reset_steps and self._degraded_steps >= self._nis_reset_steps:
-                health = self._nis_reset(zs, zv)
-                nis_reset = True
-            elif health == HEALTH_OK:
-                health = HEALTH_DEGRADED
-                self.counters["degraded"] += 1
+            health, nis_reset = self._nis_inconsistent(zs, zv, health)
         else:
             self._degraded_steps = 0
         return health, nis, nis_reset
+
+    def _nis_inconsistent(self, zs: float, zv: float, health: int) -> tuple[int, bool]:
+        """``_nis_rule`` after an inconsistent window: (health, NIS reset)."""
+        self._degraded_steps += 1
+        if self._nis_reset_steps and self._degraded_steps >= self._nis_reset_steps:
+            return self._nis_reset(zs, zv), True
+        if health == HEALTH_OK:
+            health = HEALTH_DEGRADED
+            self.counters["degraded"] += 1
+        return health, False
 
     def _remember(self, m: StepInput) -> None:
         """What the next step needs of this measurement: stamp, speed, track force, power."""
