@@ -1,5 +1,5 @@
 /* train_calib.ingest._kernel: a fix's position on the track inside the continuity window, in C (the same formulas
- * in the same order as the Python reference, so the same floats).
+ * in the same order as the Python reference, so the same floats), and the decoding of a bag's input messages.
  *
  * Locator(constants, segments, vertices, hypot) with
  *   constants  (a, e2, 1 - e2, deg_to_rad, o0, o1, o2, r00, r01, r02, r10, r11, r12): geodesy.ScalarEnu's
@@ -16,10 +16,23 @@
  * Built with -ffp-contract=off (no fused multiply-add) and without the compiler's builtin sin/cos (no sincos
  * fusion): every operation is the Python's, sin, cos and sqrt are libm's as in Python's math module.
  * Agreement with the Python: test/test_ingest_add_many.py (random points and windows, bit for bit).
+ *
+ * chunk_events(records, kinds, classes, nan, check_channel, check_schema): cdr_inputs' decoding of the input
+ * messages among an MCAP chunk's records (below); agreement: test/test_cdr_inputs.py (every test both ways, and
+ * chunks with random bytes changed).
+ *
+ * Memory check after a change (the tests on an ASan/UBSan build, then the normal build back):
+ *   gcc -O1 -g -std=c99 -ffp-contract=off -fno-builtin -fsanitize=address,undefined -fPIC -shared -I"$(.venv/bin/python
+ *     -c 'import sysconfig; print(sysconfig.get_paths()["include"])')" train_calib/ingest/_kernel.c
+ *     -o train_calib/ingest/_kernel.cpython-311-x86_64-linux-gnu.so
+ *   ASAN_OPTIONS=detect_leaks=0 LD_PRELOAD="$(gcc -print-file-name=libasan.so):$(gcc -print-file-name=libubsan.so)"
+ *     .venv/bin/python -m pytest -n0 -p no:cacheprovider test/test_ingest_add_many.py test/test_cdr_inputs.py
+ *   .venv/bin/python setup.py -q build_ext --inplace --force   (the normal build again)
  */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
 #include <math.h>
+#include <stdint.h>
 #include <string.h>
 
 #define N_CONSTANTS 13
@@ -276,9 +289,199 @@ static PyTypeObject LocatorType = {
     .tp_methods = locator_methods,
 };
 
+/* ---- cdr_inputs: the input messages of an MCAP chunk's records ------------------------------------------------
+ *
+ * chunk_events(records, kinds, classes, nan, check_channel, check_schema) -> list of (log time, event), or None
+ * where cdr_inputs._chunk_events raises _Unusable: its loop over the records and _Decoder's messages (the same
+ * checks, the same fields, the same events: classes = (GnssFix, SpeedSample, PowerSample) called with the values
+ * _Decoder.fix / speed / power pass them; nan = math.nan, the unknown variance); a channel or schema record goes to
+ * check_channel / check_schema(records, pos, end) (cdr_inputs' own, which raise _Unusable: passed on). */
+
+static uint64_t u64_at(const unsigned char *b) {
+    uint64_t v = 0;
+    for (int i = 7; i >= 0; i--)
+        v = (v << 8) | b[i];
+    return v;
+}
+
+static uint32_t u32_at(const unsigned char *b) { return (uint32_t)b[0] | (uint32_t)b[1] << 8 | (uint32_t)b[2] << 16 | (uint32_t)b[3] << 24; }
+
+static double f64_at(const unsigned char *b) {
+    uint64_t bits = u64_at(b);
+    double v;
+    memcpy(&v, &bits, sizeof v);
+    return v;
+}
+
+/* _Decoder._values' checks and _layout's offsets: 1 and the message's fields' offset (from its start at pos), 0
+ * where _Decoder raises _Unusable (-1: a Python error). floats: offset of the first float64 field. */
+static int message_layout(const unsigned char *b, Py_ssize_t pos, Py_ssize_t end, int kind, Py_ssize_t *cdr_out,
+                          Py_ssize_t *floats_out) {
+    if (end - pos < 16)
+        return 0;
+    uint32_t length = u32_at(b + pos + 12);
+    if (length < 1)
+        return 0;
+    long long cdr = 12 + (long long)length, floats, stop;
+    if (kind == 0) {
+        long long service = (cdr + 2) & -2;
+        floats = (service + 2 + 7) & -8;
+        stop = floats + 97;
+    } else {
+        floats = (cdr + 7) & -8;
+        stop = floats + (kind == 1 ? 48 : 16);
+    }
+    long long size = 4 + stop, have = (long long)(end - pos);
+    if (!(size <= have && have <= size + 3))
+        return 0;
+    const unsigned char *frame = b + pos + 16;
+    if (b[pos] != 0x00 || b[pos + 1] != 0x01 || frame[length - 1] != 0)
+        return 0; /* not little-endian CDR, or no terminator */
+    PyObject *text = PyUnicode_DecodeUTF8((const char *)frame, (Py_ssize_t)length - 1, NULL);
+    if (text == NULL) {
+        if (!PyErr_ExceptionMatches(PyExc_UnicodeDecodeError))
+            return -1;
+        PyErr_Clear();
+        return 0;
+    }
+    Py_DECREF(text);
+    *cdr_out = (Py_ssize_t)cdr;
+    *floats_out = (Py_ssize_t)floats;
+    return 1;
+}
+
+/* _Decoder.fix / speed / power: the event of the message at pos..end; NULL with an error, or Py_None (borrowed)
+ * where _Decoder raises _Unusable */
+static PyObject *message_event(const unsigned char *b, Py_ssize_t pos, Py_ssize_t end, int kind, PyObject *classes,
+                               double nan_value) {
+    Py_ssize_t cdr, floats;
+    int ok = message_layout(b, pos, end, kind, &cdr, &floats);
+    if (ok <= 0)
+        return ok < 0 ? NULL : Py_None;
+    const unsigned char *m = b + pos + 4; /* after the encapsulation: the layout's offsets */
+    int32_t sec = (int32_t)u32_at(b + pos + 4);
+    uint32_t nanosec = u32_at(b + pos + 8);
+    PyObject *args[6] = {NULL, NULL, NULL, NULL, NULL, NULL};
+    int n = 0;
+    args[n++] = PyLong_FromLongLong((long long)sec * 1000000000LL + (long long)nanosec); /* v[1] * NS + v[2] */
+    if (kind == 0) {
+        int status = (int)(signed char)m[cdr];
+        double lat = f64_at(m + floats), lon = f64_at(m + floats + 8);
+        double c0 = f64_at(m + floats + 24), c4 = f64_at(m + floats + 24 + 4 * 8);
+        int known = m[floats + 96] != 0; /* position_covariance_type != COVARIANCE_TYPE_UNKNOWN */
+        double variance = known ? 0.5 * (c0 + c4) : nan_value;
+        args[n++] = PyFloat_FromDouble(lat);
+        args[n++] = PyFloat_FromDouble(lon);
+        args[n++] = PyLong_FromLong(status);
+        args[n++] = PyFloat_FromDouble(variance);
+        args[n] = known ? Py_True : Py_False;
+        Py_INCREF(args[n]);
+        n++;
+    } else {
+        args[n++] = PyFloat_FromDouble(f64_at(m + floats));
+        if (kind == 2)
+            args[n++] = PyFloat_FromDouble(f64_at(m + floats + 8));
+    }
+    PyObject *event = NULL;
+    for (int i = 0; i < n; i++)
+        if (args[i] == NULL)
+            goto done;
+    event = PyObject_Vectorcall(PyTuple_GET_ITEM(classes, kind), args, (size_t)n, NULL);
+done:
+    for (int i = 0; i < n; i++)
+        Py_XDECREF(args[i]);
+    return event;
+}
+
+static PyObject *kernel_chunk_events(PyObject *module, PyObject *const *args, Py_ssize_t nargs) {
+    (void)module;
+    if (nargs != 6 || !PyBytes_Check(args[0]) || !PyDict_Check(args[1]) || !PyTuple_Check(args[2]) ||
+        PyTuple_GET_SIZE(args[2]) != 3 || !PyFloat_Check(args[3])) {
+        PyErr_SetString(PyExc_TypeError,
+                        "chunk_events(records: bytes, kinds: dict, classes: 3-tuple, nan: float, check_channel, "
+                        "check_schema)");
+        return NULL;
+    }
+    PyObject *records = args[0], *kinds = args[1], *classes = args[2];
+    double nan_value = PyFloat_AS_DOUBLE(args[3]);
+    const unsigned char *b = (const unsigned char *)PyBytes_AS_STRING(records);
+    Py_ssize_t n = PyBytes_GET_SIZE(records), pos = 0;
+    PyObject *out = PyList_New(0);
+    if (out == NULL)
+        return NULL;
+    while (pos < n) {
+        if (pos + 9 > n)
+            goto unusable;
+        int opcode = b[pos];
+        uint64_t length = u64_at(b + pos + 1);
+        pos += 9;
+        if (length > (uint64_t)(n - pos))
+            goto unusable;
+        Py_ssize_t end = pos + (Py_ssize_t)length;
+        if (opcode == 0x05) { /* message */
+            if (length < 22)
+                goto unusable;
+            PyObject *channel = PyLong_FromLong((long)((unsigned)b[pos] | (unsigned)b[pos + 1] << 8));
+            if (channel == NULL)
+                goto error;
+            PyObject *kind_obj = PyDict_GetItemWithError(kinds, channel); /* borrowed */
+            Py_DECREF(channel);
+            if (kind_obj == NULL) {
+                if (PyErr_Occurred())
+                    goto error;
+            } else {
+                long kind = PyLong_AsLong(kind_obj);
+                if (kind == -1 && PyErr_Occurred())
+                    goto error;
+                if (kind < 0 || kind > 2) {
+                    PyErr_SetString(PyExc_ValueError, "kinds: 0, 1 or 2");
+                    goto error;
+                }
+                PyObject *event = message_event(b, pos + 22, end, (int)kind, classes, nan_value);
+                if (event == NULL)
+                    goto error;
+                if (event == Py_None)
+                    goto unusable;
+                PyObject *log_time = PyLong_FromUnsignedLongLong(u64_at(b + pos + 6));
+                PyObject *item = log_time == NULL ? NULL : PyTuple_Pack(2, log_time, event);
+                Py_XDECREF(log_time);
+                Py_DECREF(event);
+                if (item == NULL)
+                    goto error;
+                int appended = PyList_Append(out, item);
+                Py_DECREF(item);
+                if (appended < 0)
+                    goto error;
+            }
+        } else if (opcode == 0x04 || opcode == 0x03) { /* channel, schema: cdr_inputs' checks */
+            PyObject *r = PyObject_CallFunction(opcode == 0x04 ? args[4] : args[5], "Onn", records, pos, end);
+            if (r == NULL)
+                goto error;
+            Py_DECREF(r);
+        }
+        pos = end;
+    }
+    return out;
+unusable:
+    Py_DECREF(out);
+    Py_RETURN_NONE;
+error:
+    Py_DECREF(out);
+    return NULL;
+}
+
+static PyMethodDef kernel_methods[] = {
+    {"chunk_events", (PyCFunction)(void (*)(void))kernel_chunk_events, METH_FASTCALL,
+     "chunk_events(records, kinds, classes, nan, check_channel, check_schema) -> [(log time, event)] or None: "
+     "cdr_inputs._chunk_events on a chunk's records (None: not for the fast path)."},
+    {NULL, NULL, 0, NULL},
+};
+
 static struct PyModuleDef kernel_module = {
-    PyModuleDef_HEAD_INIT, "_kernel", "The ingest's compiled kernel: map matching in the window (see offline.py).",
-    -1, NULL, NULL, NULL, NULL, NULL,
+    PyModuleDef_HEAD_INIT, "_kernel",
+    "The ingest's compiled kernel: map matching in the window (see offline.py), the input messages of a bag's chunk "
+    "(see cdr_inputs.py).",
+    -1, kernel_methods, NULL, NULL, NULL, NULL,
 };
 
 PyMODINIT_FUNC PyInit__kernel(void) {
