@@ -60,7 +60,8 @@ $(STAMP_MSGS): $(STAMP_DEPS) $(MSG_SOURCES)
 		$(MAKE) --no-print-directory -j2 install > make.log 2>&1 || { tail -40 make.log; exit 1; }
 	touch $@
 
-$(STAMP_PKG): $(STAMP_MSGS) setup.py setup.cfg package.xml train_calib/window/_kernel.c train_calib/estimation/_ukf_kernel.c
+$(STAMP_PKG): $(STAMP_MSGS) setup.py setup.cfg package.xml train_calib/window/_kernel.c train_calib/estimation/_ukf_kernel.c \
+		train_calib/ingest/_kernel.c
 	$(PIP) install --quiet --no-deps --no-build-isolation -e .
 	@# setup.cfg puts executables in lib/train_calib (where `ros2 run` looks); expose them on PATH too
 	for exe in $(VENV)/lib/train_calib/*; do ln -sf ../lib/train_calib/$$(basename $$exe) $(VENV)/bin/; done

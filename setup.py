@@ -48,12 +48,22 @@ UKF_KERNEL = Extension(
     optional=True,
 )
 
+# The ingest's C kernel (train_calib/ingest/_kernel.c: map matching in the continuity window for offline.add_many,
+# the input messages of a bag's chunk for cdr_inputs): optional as the window's; no fused multiply-add and no
+# builtin sin/cos (sincos fusion): the Python's floats
+INGEST_KERNEL = Extension(
+    f"{PACKAGE}.ingest._kernel",
+    [f"{PACKAGE}/ingest/_kernel.c"],
+    extra_compile_args=["-O2", "-std=c99", "-ffp-contract=off", "-fno-builtin", "-Wall", "-Wextra"],
+    optional=True,
+)
+
 
 setup(
     name=PACKAGE,
     version="0.1.0",
     packages=find_packages(include=[PACKAGE, f"{PACKAGE}.*"]),
-    ext_modules=[KERNEL, UKF_KERNEL],
+    ext_modules=[KERNEL, UKF_KERNEL, INGEST_KERNEL],
     python_requires=">=3.10",
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),

@@ -140,11 +140,10 @@ def _stage_times(job: dict, repeat: int) -> dict[str, float]:
     ms["decode"], events = _best_of(lambda: _decoded(bag), repeat)
 
     def ingest() -> list:  # as run_bag drives it: no delay estimate (nothing reads it), track terms in one pass
-        ing, out = P.Ingest(track, train), []
+        ing = P.Ingest(track, train)
         ing.skip_delay_estimate()
         ing.defer_terms()
-        for e in events:
-            out += ing.add(e)
+        out = ing.add_many(events)
         ing.fill_terms()
         return out + ing.flush()
 

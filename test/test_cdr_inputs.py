@@ -9,15 +9,29 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from build_context import kernel_skip_reason
 from repo_paths import REPO
 
-from train_calib import bagio
+from train_calib import bagio, cdr_inputs
 from train_calib.cdr_inputs import read_input_events
 from train_calib.ingest import fix_from_msg, power_from_msg, speed_from_msg
 from train_calib.pipeline import bag_messages
 
 BAGS = REPO / "bags"
 CONVERT = {bagio.GNSS_TOPIC: fix_from_msg, bagio.SPEED_TOPIC: speed_from_msg, bagio.POWER_TOPIC: power_from_msg}
+
+
+@pytest.fixture(autouse=True, params=["kernel", "python"])
+def decoder(request, monkeypatch):
+    """Every test with the chunks' messages decoded in C (the ingest's kernel) and in Python."""
+    if request.param == "python":
+        monkeypatch.setattr(cdr_inputs, "_kernel", None)
+    elif cdr_inputs._kernel is None:
+        reason = kernel_skip_reason()
+        if reason:
+            pytest.skip(reason)
+        pytest.fail("train_calib/ingest/_kernel.c is not built (setup.py build_ext --inplace, or make setup)")
+    return request.param
 
 
 def _generic(bag: Path) -> list:
@@ -131,3 +145,51 @@ def test_unknown_covariance_and_no_fix_are_decoded(tmp_path):
     assert fast is not None
     assert _exact(fast) == _exact(_generic(bag))
     assert fast[0].horizontal_variance == 9.0 and fast[3].status == -1 and np.isnan(fast[3].horizontal_variance)
+
+
+def _outcome(decode, records: bytes, kinds: dict) -> object:
+    try:
+        return _exact([event for _, event in decode(records, kinds)]), [t for t, _ in decode(records, kinds)]
+    except cdr_inputs._Unusable:
+        return "unusable"
+
+
+def test_the_kernel_decodes_a_chunk_as_the_python_even_with_damaged_bytes(decoder):
+    """cdr_inputs._record_events against the kernel's chunk_events on the records of a bundled bag's chunks, as
+    they are and with random bytes changed (the same events, or both unusable)."""
+    if decoder == "python":
+        pytest.skip("compares the kernel with the Python")
+    from train_calib.bagio import _summary, mcap_files
+
+    def kernel(records: bytes, kinds: dict) -> list:
+        items = cdr_inputs._kernel.chunk_events(
+            records, kinds, cdr_inputs._CLASSES, float("nan"), cdr_inputs._check_channel, cdr_inputs._check_schema
+        )
+        if items is None:
+            raise cdr_inputs._Unusable
+        return items
+
+    def python(records: bytes, kinds: dict) -> list:
+        return cdr_inputs._record_events(records, kinds, cdr_inputs._Decoder())
+
+    rng = random.Random(11)
+    outcomes = set()
+    for name in ("intercity_32km_10s_00", "tunnel_line_37km_1s_00"):
+        file = mcap_files(BAGS / name)[0]
+        data = file.read_bytes()
+        with open(file, "rb") as stream:
+            summary = _summary(stream)
+        kinds = {c.id: cdr_inputs._KIND[c.topic] for c in summary.channels.values() if c.topic in cdr_inputs._KIND}
+        for chunk in summary.chunk_indexes[:3]:
+            records = cdr_inputs._chunk_records(data, chunk.chunk_start_offset)
+            assert _outcome(kernel, records, kinds) == _outcome(python, records, kinds) != "unusable"
+            for _ in range(300):
+                damaged = bytearray(records)
+                for _ in range(rng.choice([1, 1, 2, 8])):
+                    damaged[rng.randrange(len(damaged))] = rng.randrange(256)
+                got = _outcome(kernel, bytes(damaged), kinds)
+                assert got == _outcome(python, bytes(damaged), kinds)
+                outcomes.add(got == "unusable")
+            cut = records[: rng.randrange(len(records))]
+            assert _outcome(kernel, cut, kinds) == _outcome(python, cut, kinds)
+    assert outcomes == {True, False}  # damage that is read as data and damage that is not

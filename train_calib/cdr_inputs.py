@@ -27,6 +27,12 @@ from .bagio import GNSS_TOPIC, INPUT_TOPICS, POWER_TOPIC, SPEED_TOPIC, _summary,
 from .ingest.records import NS, GnssFix, PowerSample, SpeedSample
 
 Event = GnssFix | SpeedSample | PowerSample
+_CLASSES = (GnssFix, SpeedSample, PowerSample)  # by kind, as _Decoder.by_kind
+
+try:
+    from .ingest import _kernel  # C: the input messages of a chunk (setup.py builds it where a compiler is found)
+except ImportError:  # pragma: no cover - installed without a C compiler: the Python (the same events)
+    _kernel = None
 
 _OP_SCHEMA, _OP_CHANNEL, _OP_MESSAGE = 0x03, 0x04, 0x05
 _KIND = {GNSS_TOPIC: 0, SPEED_TOPIC: 1, POWER_TOPIC: 2}
@@ -104,8 +110,20 @@ def _merged(data: bytes, chunks: list, kinds: dict[int, int], decoder: _Decoder)
 
 
 def _chunk_events(data: bytes, offset: int, kinds: dict[int, int], decoder: _Decoder) -> list[tuple[int, Event]]:
-    """(log time, event) of the input messages of the chunk at ``offset``, in record order."""
+    """(log time, event) of the input messages of the chunk at ``offset``, in record order: :func:`_record_events`,
+    in C where the ingest's kernel is built (``ingest/_kernel.c``: its loop and _Decoder's checks and fields, the
+    same events; 0.4 of the decoding time)."""
     records = _chunk_records(data, offset)
+    if _kernel is not None:
+        items = _kernel.chunk_events(records, kinds, _CLASSES, math.nan, _check_channel, _check_schema)
+        if items is None:
+            raise _Unusable
+        return items
+    return _record_events(records, kinds, decoder)
+
+
+def _record_events(records: bytes, kinds: dict[int, int], decoder: _Decoder) -> list[tuple[int, Event]]:
+    """(log time, event) of the input messages among a chunk's records, in record order."""
     n = len(records)
     out: list[tuple[int, Event]] = []
     pos = 0

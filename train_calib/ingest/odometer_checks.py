@@ -49,12 +49,16 @@ class OdometerChecks:
         restarts = odometer.restarts
         odometer.add(t_ns, v)
         if odometer.restarts != restarts:  # a gap the odometer does not bridge: its distances restart
-            self.direction.reset()
-            self.delay.reset()
-            # the queue is kept: a fix older than the restart finds no odometer distance and is skipped in update(),
-            # and a fix of the restart's own stamp that arrived before this sample is used as if it came after
-            # (clearing it made the reversing count depend on the arrival order at one stamp: 29 or 30 samples,
-            # bench/mutation/restart_order.py)
+            self.restarted()
+
+    def restarted(self) -> None:
+        """The odometer restarted (a gap it does not bridge): the direction and delay checks start over."""
+        self.direction.reset()
+        self.delay.reset()
+        # the queue is kept: a fix older than the restart finds no odometer distance and is skipped in update(),
+        # and a fix of the restart's own stamp that arrived before this sample is used as if it came after
+        # (clearing it made the reversing count depend on the arrival order at one stamp: 29 or 30 samples,
+        # bench/mutation/restart_order.py)
 
     def reacquired(self) -> None:
         """The position was re-acquired elsewhere: the fixes before do not compare with those after."""
