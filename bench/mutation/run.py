@@ -26,7 +26,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from mutations import MUTATIONS, Mutation  # noqa: E402
 
-KERNEL_GLOBS = ("train_calib/window/_kernel*.so", "train_calib/estimation/_ukf_kernel*.so")  # the built C kernels
+KERNEL_GLOBS = (  # the built C kernels
+    "train_calib/window/_kernel*.so",
+    "train_calib/estimation/_ukf_kernel*.so",
+    "train_calib/ingest/_kernel*.so",
+)
 
 
 def copy_tree(dest: Path) -> None:
