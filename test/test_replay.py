@@ -135,6 +135,7 @@ def test_replay_writes_output_bag_summary_and_report(bag, tmp_path, capsys):
     assert regimes["whole_run"] == {name: whole.count(code) for code, name in enumerate(REGIME_NAMES)}
     assert regimes["on_board"] == {name: on_board.count(code) for code, name in enumerate(REGIME_NAMES)}
     assert regimes["samples_relabelled"] == sum(a != b for a, b in zip(whole, on_board))
+    assert regimes["on_board_lag_samples"] == 1  # the default: regime_node publishes one sample late
     # a second replay into the same directory is refused unless --overwrite
     assert cli.main(argv) == 2
     assert "output.mcap: already exists" in capsys.readouterr().err

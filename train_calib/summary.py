@@ -370,6 +370,7 @@ def whole_run_regimes(outputs: Outputs, train: TrainSpec, config: RegimeConfig |
         "method": f"{cfg.method}, "
         + ("smoothed over the whole run (offline)" if cfg.method != "rule" else "per sample"),
         "on_board": counts(on_board),
+        "on_board_lag_samples": cfg.lag_samples,  # regime_node's: 1 published one sample late, revised; 0 causal
         "whole_run": counts(whole),
         "samples_relabelled": int(np.count_nonzero(whole != on_board)),
     }
