@@ -76,7 +76,6 @@ from .regime_model import (  # noqa: F401 (POWER_* re-exported)
     POWER_TRACTION,
     SQRT2,
     START_PRIOR,
-    backward_message,
     log_erfc,
     most_probable,
     power_state,
