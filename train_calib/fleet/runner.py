@@ -46,7 +46,7 @@ PARTS = "runs.parts"
 
 TASK_SECONDS = 1.0
 """Default size of a task: about this many worker seconds of runs (from the mean of the runs computed so far; one
-run per task until the first has come back). The client and the scheduler spend about 5 ms of this process's CPU
+run per task until the first has come back). The client and the scheduler spend about 4 ms of this process's CPU
 per task (bench_fleet: parent CPU); at 1 Hz (0.1 s a run) one run per task cost 12 ms a run in this process, so on
 2 cores 2 workers reached only ~1.8x one."""
 MAX_RUNS_PER_TASK = 32
