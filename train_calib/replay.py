@@ -619,12 +619,30 @@ class Replay:
             expected = graph.subscribers_expected(1)[topic]  # the graph's own subscribers and the recorder
             return min(p.matched.get(topic, 0) for p in graph.progress().values() if topic in p.published) - expected
 
+        def not_yet_discovered(nodes: set[tuple[str, str]], subscriptions: dict[str, list[Any]]) -> list[str]:
+            """Output topics a subscriber node declares (its node's graph entry) whose subscription this process
+            has not discovered yet: that topic's check below would pass with no subscription to match."""
+            lacking = []
+            for namespace, name in sorted(nodes):
+                try:
+                    declared = probe.get_subscriber_names_and_types_by_node(name, namespace)
+                except Exception:  # the node left, or its graph entry is not there yet: its subscriptions decide
+                    continue
+                for topic, _ in declared:
+                    infos = subscriptions.get(topic)
+                    if infos is not None and not any(
+                        i.node_name == name and i.node_namespace == namespace for i in infos
+                    ):
+                        lacking.append(f"{topic} ({namespace.rstrip('/')}/{name}'s subscription {where})")
+            return lacking
+
         def das_lacking() -> list[str]:
             if not wanted:
                 return []
             subscriptions = {t: others(t) for t in outputs()}
             nodes = {(i.node_namespace, i.node_name) for infos in subscriptions.values() for i in infos}
             lacking = [f"{len(nodes)} of {wanted} subscriber nodes {where}"] if len(nodes) < wanted else []
+            lacking += not_yet_discovered(nodes, subscriptions)
             for topic, infos in subscriptions.items():
                 if infos and matched_by_others(topic) < len(infos):
                     lacking.append(f"{topic} ({matched_by_others(topic)} of {len(infos)} subscriptions {where})")
