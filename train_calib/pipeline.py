@@ -110,7 +110,6 @@ class RegimeStream:
         self.config = config if config is not None else RegimeConfig()
         self.classifier = RegimeClassifier(self.config)
         self._lag = self.config.lag_samples > 0
-        self._revise_regime = self.config.method == "hmm"  # hmm: the regime is the phase
         self._held: tuple[Any, int, int] | None = None
 
     @property
@@ -126,14 +125,8 @@ class RegimeStream:
         out = []
         if self._held is not None:
             held, held_regime, held_phase = self._held
-            revised = self.classifier.revised_previous
-            if revised is not None and held.run_id == sample.run_id:
-                held_phase = revised
-                if self._revise_regime:
-                    held_regime = revised
-            revised_regime = self.classifier.revised_previous_regime  # imm: the regime at the held one's instant
-            if revised_regime is not None and held.run_id == sample.run_id:
-                held_regime = revised_regime
+            if held.run_id == sample.run_id:
+                held_regime, held_phase = self.classifier.revised_labels(held_regime, held_phase)
             out.append((held, held_regime, held_phase))
         self._held = (sample, regime, phase)
         return out

@@ -65,16 +65,25 @@ def smoothed_labels(steps: Sequence[ImmStep], mean_dwell: float, switch_max: flo
         f0, f1, f2, f3 = steps[k].probabilities
         if k + 1 < n and not steps[k + 1].restarted:  # the message from step k + 1 of the same sequence
             stay, off = transition(steps[k + 1].t - steps[k].t, mean_dwell, switch_max)
-            keep = stay - off
-            m0, m1, m2, m3 = steps[k + 1].probabilities
-            # L_{k+1} = mu_{k+1} / c_{k+1}, c = off + keep mu_k (the probabilities sum to 1)
-            c0, c1 = m0 / (off + keep * f0) * b0, m1 / (off + keep * f1) * b1
-            c2, c3 = m2 / (off + keep * f2) * b2, m3 / (off + keep * f3) * b3
-            b0, b1, b2, b3 = backward_message(c0, c1, c2, c3, keep, off)
+            b0, b1, b2, b3 = _backward(steps[k].probabilities, steps[k + 1].probabilities, (b0, b1, b2, b3), stay, off)
         else:  # the last step of a sequence
             b0 = b1 = b2 = b3 = 1.0
         labels[k] = most_probable(f0 * b0, f1 * b1, f2 * b2, f3 * b3)
     return labels
+
+
+def _backward(
+    before: tuple[float, ...], after: tuple[float, ...], b: tuple[float, float, float, float], stay: float, off: float
+) -> tuple[float, float, float, float]:
+    """One step of the backward recursion: the message to the step with filtered probabilities ``before`` from
+    the next one (``after``, its message ``b``), with the transition (``stay``, ``off``) between them."""
+    keep = stay - off
+    f0, f1, f2, f3 = before
+    m0, m1, m2, m3 = after
+    # L_{k+1} = mu_{k+1} / c_{k+1}, c = off + keep mu_k (the probabilities sum to 1)
+    c0, c1 = m0 / (off + keep * f0) * b[0], m1 / (off + keep * f1) * b[1]
+    c2, c3 = m2 / (off + keep * f2) * b[2], m3 / (off + keep * f3) * b[3]
+    return backward_message(c0, c1, c2, c3, keep, off)
 
 
 def whole_run_labels(steps: Sequence[ImmStep], mean_dwell: float, switch_max: float, speed_noise: float) -> list[int]:
@@ -160,17 +169,12 @@ class OneSampleLate:
         if len(history) >= 3 and min(last.t - before.t, before.t - history[-3].t) >= LONG_STEP_S:
             labels = smoothed_labels(history, self._mean_dwell, self._switch_max)
             return regime_at_changes(history, labels, self._tolerance)[-2]
-        # regime_at_changes would keep the label: smoothed_labels(history[-2:])[0], written out (once per sample)
+        # regime_at_changes would keep the label: smoothed_labels(history[-2:])[0], its transition reused
         dt = last.t - before.t
         if dt != self._dt:
             self._dt, self._transition = dt, transition(dt, self._mean_dwell, self._switch_max)
-        stay, off = self._transition
-        keep = stay - off
+        b0, b1, b2, b3 = _backward(before.probabilities, last.probabilities, (1.0, 1.0, 1.0, 1.0), *self._transition)
         f0, f1, f2, f3 = before.probabilities
-        m0, m1, m2, m3 = last.probabilities
-        c0, c1 = m0 / (off + keep * f0), m1 / (off + keep * f1)
-        c2, c3 = m2 / (off + keep * f2), m3 / (off + keep * f3)
-        b0, b1, b2, b3 = backward_message(c0, c1, c2, c3, keep, off)
         return most_probable(f0 * b0, f1 * b1, f2 * b2, f3 * b3)
 
 

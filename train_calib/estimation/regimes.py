@@ -191,6 +191,19 @@ class RegimeClassifier:
         did not reach the imm, or the previous one was not the imm's last)."""
         return self._revised_regime
 
+    def revised_labels(self, regime: int, phase: int) -> tuple[int, int]:
+        """The previous sample's (regime, phase), published as (``regime``, ``phase``), given the last sample too
+        (``lag_samples`` 1): :attr:`revised_previous` revises the phase, and with ``hmm`` the regime, which is the
+        phase; :attr:`revised_previous_regime` the imm regime; each stays where the last call did not inform it."""
+        revised = self._revised
+        if revised is not None:
+            phase = revised
+            if self._imm is None:  # hmm: the regime is the phase
+                regime = revised
+        if self._revised_regime is not None:
+            regime = self._revised_regime
+        return regime, phase
+
     @property
     def phase(self) -> int:
         """The paper's phase of the last sample (Cunillera 3.2: the ``hmm`` label, or the rule's); with ``imm`` it
@@ -467,7 +480,6 @@ def _classify_each(e, a, cfg, speed, effort_known, opposing_force, speed_measure
     ``hmm`` (with ``lag_samples`` 1) too: the regime is then the phase."""
     clf = RegimeClassifier(cfg)
     lagged = cfg.lag_samples > 0 and not smooth
-    regime_is_phase = cfg.method == "hmm"
     imm = clf._imm
     steps: list[ImmStep] = []
     stepped: list[int] = []
@@ -491,14 +503,7 @@ def _classify_each(e, a, cfg, speed, effort_known, opposing_force, speed_measure
                               track_force=g, position=s, track_force_integral=gam)  # fmt: skip
         phases[i] = clf.phase
         if lagged and i > 0:
-            revised = clf.revised_previous
-            if revised is not None:
-                phases[i - 1] = revised
-                if regime_is_phase:
-                    out[i - 1] = revised
-            revised_regime = clf.revised_previous_regime
-            if revised_regime is not None:
-                out[i - 1] = revised_regime
+            out[i - 1], phases[i - 1] = clf.revised_labels(int(out[i - 1]), int(phases[i - 1]))
         if before is not None:
             step = imm_step_after(imm, *before, *clf._imm_input)
             if step is not None:
