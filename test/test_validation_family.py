@@ -16,6 +16,7 @@ from repo_paths import DATA, validation_module
 
 from train_calib.estimation import UKFConfig
 from train_calib.physics import KMH
+from train_calib.track import load_track
 from train_calib.train import load_train
 
 family = validation_module("family")
@@ -132,6 +133,36 @@ def test_coasting_stretches() -> None:
     u[45:55] = 0.0  # 9 s: too short
     v = np.full(60, 20.0)
     assert score.coasting_stretches(t, u, v) == [(5.0, 30.0)]
+
+
+def test_coasting_throughout_rejects_a_speed_held_by_traction_pulses() -> None:
+    """The external runs' truth: u sampled at 1 Hz reads 0 between sub-second traction pulses that hold the speed.
+    A sample is coasting only where the truth's own speeds show no effort over the steps next to it."""
+    track = load_track(DATA / "small_track.yaml")
+    train = load_train(DATA / "small_train.yaml")
+    truth = train.davis.as_tuple()
+    t = np.arange(0.0, 60.0)
+    v = np.empty_like(t)
+    v[:30] = 12.0  # held: the pulses cancel r + g over each second
+    # then coasting on the flat first km: dv/dt = -(r + g), integrated finely
+    s = np.empty_like(t)
+    s[:30] = 50.0 + 12.0 * t[:30]
+    vv, ss = 12.0, float(s[29])
+    for k in range(30, 60):
+        for _ in range(100):
+            g = float(track.track_force(ss, train.length_m))
+            vv -= 0.01 * (truth[0] + truth[1] * vv + truth[2] * vv * vv + g)
+            ss += 0.01 * vv
+        v[k], s[k] = vv, ss
+    assert s[-1] < 1000.0 - train.length_m  # flat ground throughout
+    u = np.zeros_like(t)
+    u[::4] = 1.0  # a pulse every 4 s at the samples; 0 at the others
+    u[30:] = 0.0
+    mask = score.coasting_throughout(t, s, v, u, truth, track, train)
+    assert not mask[:30].any()  # u == 0 at 3 of 4 of these samples, and none coasting
+    assert mask[30:].all()  # the coast
+    assert score.coasting_stretches(t, u, v) == [(29.0, 59.0)]  # by u alone: the held second before the coast too
+    assert score.coasting_stretches(t, u, v, coast=mask) == [(30.0, 59.0)]
 
 
 def test_split_is_deterministic() -> None:

@@ -334,12 +334,18 @@ def grid_ns(sset: SensorSet, power: bool) -> int:
 
 
 def simulate_spec(
-    spec: RunSpec, start_ns: int = 1_700_000_000_000_000_000, truth: Davis | None = None
+    spec: RunSpec,
+    start_ns: int = 1_700_000_000_000_000_000,
+    truth: Davis | None = None,
+    noise_seed: Sequence[int] | None = None,
 ) -> tuple[Streams, Davis, Track, TrainSpec]:
     """Simulate every interstation of the run with one true resistance and one sensor phase.
 
     ``truth``: this resistance instead of the one drawn from the seed (the draw is made all the same, so the
-    driver and the noise follow from the seed alone; bench/prediction/siblings.py: other runs of one unit)."""
+    driver and the noise follow from the seed alone; bench/prediction/siblings.py: other runs of one unit).
+    ``noise_seed``: the same run (truth, drivers, dwells, sensor phase) with other sensor noise
+    (bench/validation/replicates.py): each leg is simulated with the seed's generator as usual, which keeps
+    every later draw as it was, then again with the same planned driver and a generator of ``noise_seed``."""
     fam = spec.family
     track = cached_track(resolve_track(fam.track))
     train = cached_train(resolve_train(fam.train))
@@ -349,6 +355,7 @@ def simulate_spec(
     sset = SENSORS[fam.sensors]
     gnss_offset = float(rng.uniform(*sset.gnss_shift_s)) % sset.gnss_period_s
     pairs = station_pairs(track, fam.stops)
+    noise_rng = None if noise_seed is None else np.random.default_rng(list(noise_seed))
     legs: list[Leg] = []
     t0 = start_ns
     grid = grid_ns(sset, fam.power)
@@ -359,6 +366,8 @@ def simulate_spec(
         driver = make_driver(fam, train, s1 - s0, rng)
         sensors = make_sensors(sset, fam.power, rng, pre, post, gnss_offset)
         run, driver = simulate_leg(track, train, driver, sensors, rng, truth, (a, b), t0, spec.seed)
+        if noise_rng is not None:
+            run, _ = simulate_leg(track, train, driver, sensors, noise_rng, truth, (a, b), t0, spec.seed)
         legs.append(Leg(run, t0, driver))
         end_ns = 1 + max(
             int(x.t_ns[-1]) for x in (run.gnss, run.speed, run.power, run.dense) if x is not None and x.t_ns.size
