@@ -70,20 +70,21 @@ class RunReplicates:
     own: Replicate
     replicates: list[Replicate]
 
-    def _errs(self, oracle: bool) -> np.ndarray:
+    def errors(self, oracle: bool = False) -> np.ndarray:
+        """The draws' signed errors in % (the estimate's, or the oracle's: nan where it has no coast)."""
         vals = [r.oracle_err if oracle else r.err for r in self.replicates]
         return np.array([np.nan if v is None else v for v in vals], dtype=float)
 
     def worse_share(self, oracle: bool = False) -> float | None:
         """Share of replicates whose |error| exceeds the prior's by more than score.WORSE_POINTS."""
-        e = self._errs(oracle)
+        e = self.errors(oracle)
         e = e[np.isfinite(e)]
         if e.size == 0:
             return None
         return float(np.mean(np.abs(e) > abs(self.prior_err) + score.WORSE_POINTS))
 
     def mean_sd(self, oracle: bool = False) -> tuple[float, float] | None:
-        e = self._errs(oracle)
+        e = self.errors(oracle)
         e = e[np.isfinite(e)]
         return (float(e.mean()), float(e.std())) if e.size else None
 
@@ -187,8 +188,8 @@ def markdown(results: Sequence[RunReplicates], replicates: int, preset: str) -> 
         ora = sum(m.worse_share(oracle=True) or 0.0 for m in members)
         own = sum(1 for m in members if abs(m.own.err) > abs(m.prior_err) + score.WORSE_POINTS)
         cov = float(np.mean([r.inside_2sigma for m in members for r in m.replicates]))
-        med = _abs_median(m._errs(False) for m in members)
-        med_o = _abs_median(m._errs(True) for m in members)
+        med = _abs_median(m.errors() for m in members)
+        med_o = _abs_median(m.errors(oracle=True) for m in members)
         prior = float(np.median([abs(m.prior_err) for m in members]))
         lines.append(
             f"| {f} | {split} | {len(members)} | {score._f(med)} | {score._f(med_o)} | {prior:.1f} | {est:.2f} | "

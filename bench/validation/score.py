@@ -43,7 +43,7 @@ import numpy as np
 from train_calib.bagio import iter_bag
 from train_calib.estimation import UKFConfig
 from train_calib.paths import track_file, train_file
-from train_calib.physics import KMH
+from train_calib.physics import KMH, davis
 from train_calib.pipeline import run_bag, whole_run_regimes
 from train_calib.track import Track, load_track
 from train_calib.train import TrainSpec, load_train
@@ -194,7 +194,7 @@ def coasting_throughout(
     0-3 % of a run's coasting samples (family medians; the seconds where the effort ramps at a coast's ends)."""
     t, s, v, u = (np.asarray(x, dtype=float) for x in (t, s, v, u))
     tun = np.asarray(track.tunnel_fraction(s, train.length_m), dtype=float)
-    r = truth[0] + truth[1] * v + truth[2] * v * v * (1.0 + train.tunnel_factor * tun)
+    r = davis(v, *truth, tun, train.tunnel_factor)
     g = np.asarray(track.track_force(s, train.length_m), dtype=float)
     dt = np.diff(t)
     with np.errstate(invalid="ignore", divide="ignore"):
