@@ -289,10 +289,11 @@ def test_c_slope_push_equals_python():
 def test_c_step_input_equals_from_measurement():
     """_ukf_kernel.step_input gives StepInput.from_measurement's tuple, field for field and type for type, from
     Measurements holding Python and numpy scalars, NaN and infinities; update() takes it."""
-    from train_calib.estimation import ukf
+    from train_calib.estimation import ukf_types
     from train_calib.measurement import Measurement
 
-    assert ukf._step_input.func is ukf_fast._ukf_kernel.step_input and ukf._step_input.args == (ukf.StepInput,)
+    assert ukf_types.step_input.func is ukf_fast._ukf_kernel.step_input
+    assert ukf_types.step_input.args == (ukf_types.StepInput,)
     rng = np.random.default_rng(3)
     values = [0.0, -0.0, 1.5, math.nan, math.inf, np.float64(2.25), np.float32(0.1), 7, np.int64(9)]
     for k in range(500):
@@ -305,12 +306,12 @@ def test_c_step_input_equals_from_measurement():
             power_regenerated=values[(k + 6) % len(values)], tunnel_fraction=values[(k + 7) % len(values)],
             track_force_integral=values[(k + 8) % len(values)],
         )  # fmt: skip
-        a, b = ukf._step_input(m), ukf.StepInput.from_measurement(m)
-        assert type(a) is type(b) is ukf.StepInput
+        a, b = ukf_types.step_input(m), ukf_types.StepInput.from_measurement(m)
+        assert type(a) is type(b) is ukf_types.StepInput
         assert [type(x) for x in a] == [type(x) for x in b]
         assert all(repr(x) == repr(y) for x, y in zip(a, b, strict=True)), (a, b)
     with pytest.raises(AttributeError):
-        ukf._step_input(object())
+        ukf_types.step_input(object())
 
 
 class _Counted:

@@ -1,8 +1,8 @@
 """The UKF step of Cunillera et al. (2022), eq. 3-18, written out as the paper states it: the tests' oracle.
 
 One numpy line per equation, the equation number beside it, sigma points formed explicitly (filterpy's
-``UnscentedKalmanFilter`` + ``MerweScaledSigmaPoints`` style). Slow and plain on purpose: ``ukf.py`` computes the
-same step in closed form (docs/estimator.md, "The filter"), and test/estimation/test_ukf_reference.py checks it
+``UnscentedKalmanFilter`` + ``MerweScaledSigmaPoints`` style). Slow and plain on purpose: ``ukf_step.py`` computes
+the same step in closed form (docs/estimator.md, "The filter"), and test/estimation/test_ukf_reference.py checks it
 against this module step by step, for the resistance filter and for the output (published) filter.
 
 Everything is SI: s in m, v in m/s, r0 N/kg, r1 N/(kg m/s), r2 N/(kg (m/s)^2), u and g in N/kg, dt in s.
