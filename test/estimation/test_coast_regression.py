@@ -1,4 +1,5 @@
-"""Coast regression (estimation/coast_regression.py): detection, posterior, causal form, UKF integration.
+"""Coast regression (estimation/coast_regression.py, coast_detection.py, coast_posterior.py): detection, posterior,
+causal form, UKF integration.
 
 Truth comes from the tests' own generator (synthetic.py: RK4 of a scripted driver), not the product simulator.
 """
