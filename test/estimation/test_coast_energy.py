@@ -16,13 +16,12 @@ from repo_paths import REPO
 from scipy.integrate import cumulative_trapezoid, solve_ivp
 
 from train_calib.estimation.coast_energy import energy_bounds, energy_equations, uses_energy_form
+from train_calib.estimation.coast_posterior import posterior, prior_covariance
 from train_calib.estimation.coast_regression import (
     CoastRegression,
     CoastSettings,
     RunArrays,
     fit_coasts,
-    posterior,
-    prior_covariance,
 )
 from train_calib.physics import KMH
 from train_calib.track import load_track, track_from_mapping

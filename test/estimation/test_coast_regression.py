@@ -1,4 +1,5 @@
-"""Coast regression (estimation/coast_regression.py): detection, posterior, causal form, UKF integration.
+"""Coast regression (estimation/coast_regression.py, coast_detection.py, coast_posterior.py): detection, posterior,
+causal form, UKF integration.
 
 Truth comes from the tests' own generator (synthetic.py: RK4 of a scripted driver), not the product simulator.
 """
@@ -12,6 +13,8 @@ import pytest
 from synthetic import Script, make_run
 
 from train_calib.estimation import COASTING, UKFConfig, estimate_run
+from train_calib.estimation.coast_detection import speed_noise
+from train_calib.estimation.coast_posterior import posterior, prior_covariance
 from train_calib.estimation.coast_regression import (
     POWER_DRIVE,
     POWER_NONE,
@@ -19,9 +22,6 @@ from train_calib.estimation.coast_regression import (
     CoastSettings,
     RunArrays,
     fit_coasts,
-    posterior,
-    prior_covariance,
-    speed_noise,
 )
 from train_calib.physics import KMH
 from train_calib.train import Davis

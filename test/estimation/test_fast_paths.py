@@ -9,7 +9,7 @@ import pytest
 from estimation_cases import simulated_run
 
 from train_calib.estimation import UKFConfig
-from train_calib.estimation.coast_regression import median
+from train_calib.estimation.coast_detection import median
 from train_calib.estimation.ukf import ResistanceEstimator, StepInput, StepResult
 from train_calib.paths import train_file
 from train_calib.train import load_train
@@ -21,7 +21,7 @@ def same_float(a: float, b: float) -> bool:
 
 
 def test_median_is_numpy_median():
-    """coast_regression.median equals float(np.median(x)): odd and even sizes, ties, signed zeros, NaN."""
+    """coast_detection.median equals float(np.median(x)): odd and even sizes, ties, signed zeros, NaN."""
     rng = np.random.default_rng(7)
     for n in [*range(1, 30), 64, 65, 1199, 1200, 4000]:
         for kind in range(6):

@@ -21,15 +21,9 @@ if ukf_kernel_skip_reason():  # colcon test: the source tree without the kernel 
 from estimation_cases import simulated_run
 from test_fast_paths import CONFIGS, same_float, same_result, step_inputs
 
-from train_calib.estimation import UKFConfig, coast_regression, effort, ukf_fast
-from train_calib.estimation.coast_regression import (
-    CoastRegression,
-    CoastSettings,
-    candidate_steps,
-    candidate_steps_python,
-    fit_coasts,
-    local_slopes,
-)
+from train_calib.estimation import UKFConfig, coast_detection, coast_regression, effort, ukf_fast
+from train_calib.estimation.coast_detection import candidate_steps, candidate_steps_python, local_slopes
+from train_calib.estimation.coast_regression import CoastRegression, CoastSettings, fit_coasts
 from train_calib.estimation.coast_types import POWER_DRIVE, POWER_NONE, POWER_UNKNOWN, RunArrays
 from train_calib.estimation.effort import SpeedSlope
 from train_calib.estimation.run import estimate_run
@@ -42,6 +36,7 @@ def test_kernel_is_built():
     """The comparisons below need the kernel (setup.py builds it where a C compiler is found): without it they would
     compare the Python with itself."""
     assert ukf_fast.KERNEL_AVAILABLE and coast_regression._ukf_kernel is not None and effort._ukf_kernel is not None
+    assert coast_detection._ukf_kernel is not None
     assert ukf_fast.common_step is ukf_fast._ukf_kernel.common_step
     assert ResistanceEstimator(simulated_run(0, 1.0)[3])._common_step is ukf_fast.common_step
 
@@ -186,8 +181,8 @@ def test_c_candidates_equal_numpy(power):
                   float(settings.power_decides), 1.6 * settings.coast_ratio_max,
                   min(settings.max_gap, 2.5 * period))  # fmt: skip
         slopes = np.empty(n), np.empty(n)
-        if coast_regression._ukf_kernel.coast_candidates(arr.t, arr.v, arr.g, arr.run, arr.power, *out, params,
-                                                         *slopes):  # fmt: skip
+        if coast_detection._ukf_kernel.coast_candidates(arr.t, arr.v, arr.g, arr.run, arr.power, *out, params,
+                                                        *slopes):  # fmt: skip
             taken += 1
             np.testing.assert_array_equal(out[0], ref_speed)
             np.testing.assert_array_equal(out[1], ref_power)
@@ -201,7 +196,7 @@ def test_c_candidates_equal_numpy(power):
     arr.run = arr.run[::-1].copy()
     out = np.empty(200, bool), np.empty(200, bool)
     params = (30.0, 24.0, *prior.tolist(), 0.5, 2.0, 2.0, 0.02, 3.0, 1.0, 3.2, 2.5)
-    assert not coast_regression._ukf_kernel.coast_candidates(arr.t, arr.v, arr.g, arr.run, arr.power, *out, params)
+    assert not coast_detection._ukf_kernel.coast_candidates(arr.t, arr.v, arr.g, arr.run, arr.power, *out, params)
 
     def outcome(f) -> list:
         try:
@@ -378,8 +373,9 @@ import sys
 sys.modules["train_calib.estimation._ukf_kernel"] = None  # the import fails as on a machine without a compiler
 sys.path[:0] = [{root!r}, {tests!r}, {tests_root!r}]
 from test_ukf_kernel import digest
-from train_calib.estimation import coast_regression, effort, ukf_fast
+from train_calib.estimation import coast_detection, coast_regression, effort, ukf_fast
 assert not ukf_fast.KERNEL_AVAILABLE and coast_regression._ukf_kernel is None and effort._ukf_kernel is None
+assert coast_detection._ukf_kernel is None
 assert ukf_fast.common_step is ukf_fast.common_step_python
 print(digest())
 """

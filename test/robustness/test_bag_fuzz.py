@@ -28,7 +28,7 @@ CASES = int(os.environ.get("TRAIN_CALIB_FUZZ_CASES", "20"))
 MAX_RSS_MB = 400.0  # measured 157 MB over 60 cases (the replay, the graph and the recorder in one process; VmHWM)
 OK_STATUS = (0, 2, 3, 4)
 KNOWN: dict[int, str] = {}  # seed -> a bug outside the replay, found by this test (not strict: passes once fixed)
-# (58: the summary's coast regression on stamps that go back, fixed: coast_regression.monotonic_parts)
+# (58: the summary's coast regression on stamps that go back, fixed: coast_detection.monotonic_parts)
 
 
 def _case(seed: int) -> dict:
