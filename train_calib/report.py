@@ -358,7 +358,7 @@ def _band(
 
 def _resistance_curve(ax, outputs: Outputs, train: TrainSpec, truth: dict | None, best: dict | None) -> None:
     """Panel 9: r(v) against speed (module docstring)."""
-    from .estimation.coast_regression import prior_covariance
+    from .estimation.coast_posterior import prior_covariance
 
     est = outputs.est
     v_top = max(float(np.max(outputs.meas["v"])) * 3.6 if outputs.meas else 0.0, 40.0)

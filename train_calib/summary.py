@@ -21,7 +21,8 @@ from typing import Any
 import numpy as np
 
 from .bagio import iter_bag, stamp_ns
-from .estimation.coast_regression import CoastSettings, RunArrays, fit_coasts, resistance_and_sigma
+from .estimation.coast_posterior import resistance_and_sigma
+from .estimation.coast_regression import CoastSettings, RunArrays, fit_coasts
 from .estimation.config import RegimeConfig
 from .estimation.effort import PowerEffort
 from .estimation.records import EFFORT_COMPUTED, EFFORT_SOURCES

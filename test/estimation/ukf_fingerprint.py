@@ -1,17 +1,19 @@
 """Fingerprint of the estimator's outputs: a sha256 over every output byte of the whole-run API.
 
-Run before and after a refactoring of ``estimation/ukf.py`` / ``run.py``: the hash must not change (bit-identical
-outputs). Covers ``estimate_run``, ``resistance_run`` and ``smooth_run`` for the presets learning (the default,
-``UKFConfig()``), paper and converging, on simulated runs with and without traction power at 10 s and 1 Hz, on the
-synthetic runs at 10 s and 1 Hz, and on the bundled bags through ``train_calib.pipeline.run_bag`` (per-sample
-``update()``; the bags' measurements also through the whole-run API).
+Run before and after a refactoring of the filter (``estimation/ukf*.py``, ``run.py``): the hash must not change
+(bit-identical outputs). Covers ``estimate_run``, ``resistance_run`` and ``smooth_run`` for the presets learning
+(the default, ``UKFConfig()``), paper and converging, on simulated runs with and without traction power at 10 s and
+1 Hz, on the synthetic runs at 10 s and 1 Hz, and on the bundled bags through ``train_calib.pipeline.run_bag``
+(per-sample ``update()``; the bags' measurements also through the whole-run API).
 
     .venv/bin/python test/estimation/ukf_fingerprint.py [-v]     # -v: one hash per case too
     .venv/bin/python test/estimation/ukf_fingerprint.py --against REV [FILE ...]
 
-``--against REV``: the fingerprint of this tree and of a copy of it whose FILEs (default the filter's own:
-estimation/ukf.py and estimation/run.py) are taken from git revision REV -- the check of a refactoring while other
-files of the working tree change under it (both hashes move with them; they must stay equal).
+``--against REV``: the fingerprint of this tree and of a copy of it whose FILEs (default the filter's own,
+``FILTER_FILES``) are taken from git revision REV (a FILE that REV does not have is left out of the copy: before the
+split of ukf.py, its one module held the step, the safeguards, the look-ahead and the types) -- the check of a
+refactoring while other files of the working tree change under it (both hashes move with them; they must stay
+equal).
 """
 
 from __future__ import annotations
@@ -95,6 +97,13 @@ def main(verbose: bool = False) -> str:
     return digest
 
 
+FILTER_FILES = [
+    f"train_calib/estimation/{name}.py"
+    for name in ("ukf", "ukf_step", "ukf_safeguards", "ukf_lookahead", "ukf_types", "run")
+]
+"""The filter's own modules (``--against``'s default FILEs)."""
+
+
 def against(rev: str, files: list[str]) -> bool:
     """Fingerprint of the working tree and of a temporary copy with ``files`` from ``rev``; True when equal."""
     import shutil
@@ -112,9 +121,11 @@ def against(rev: str, files: list[str]) -> bool:
         for label, tree in (("working tree", root), (rev, copy)):
             if tree is copy:
                 for f in files:
-                    text = subprocess.run(["git", "-C", str(root), "show", f"{rev}:{f}"], check=True,
-                                          capture_output=True).stdout  # fmt: skip
-                    (copy / f).write_bytes(text)
+                    shown = subprocess.run(["git", "-C", str(root), "show", f"{rev}:{f}"], capture_output=True)
+                    if shown.returncode == 0:
+                        (copy / f).write_bytes(shown.stdout)
+                    else:  # not in rev (a module split off since)
+                        (copy / f).unlink(missing_ok=True)
             out = subprocess.run([sys.executable, str(tree / "test/estimation/ukf_fingerprint.py")], check=True,
                                  capture_output=True, text=True, cwd=tree,
                                  env={**__import__("os").environ, "PYTHONPATH": str(tree)}).stdout  # fmt: skip
@@ -127,6 +138,5 @@ def against(rev: str, files: list[str]) -> bool:
 if __name__ == "__main__":
     args = sys.argv[1:]
     if args and args[0] == "--against":
-        sys.exit(0 if against(args[1], args[2:] or ["train_calib/estimation/ukf.py",
-                                                    "train_calib/estimation/run.py"]) else 1)  # fmt: skip
+        sys.exit(0 if against(args[1], args[2:] or FILTER_FILES) else 1)
     main("-v" in args)

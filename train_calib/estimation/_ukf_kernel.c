@@ -30,7 +30,7 @@
  *   estimator where they do something else (_power_state with a power measurement, the coast regression's
  *   _detect / push_python / _take_coast_resistance, _step_chain when the common step declines,
  *   _nis_inconsistent). None, with nothing changed, for any other sample: process then runs in Python.
- *   configure(...) first gives it StepInput, StepResult and ukf.py's input limits.
+ *   configure(...) first gives it StepInput, StepResult and the input limits (ukf_types.py).
  *
  * slope_push(slope, t, v) -> slope
  *   effort.SpeedSlope.push_python on the SpeedSlope ``slope``'s own deque and running sums (its _refresh called
@@ -1330,7 +1330,7 @@ static PyMethodDef methods[] = {
      "step_input(StepInput, m) -> StepInput: ukf.StepInput.from_measurement."},
     {"configure", (PyCFunction)(void (*)(void))configure, METH_FASTCALL,
      "configure(StepInput, StepResult, MAX_SPEED, MAX_TRACK_FORCE, MAX_POSITION, MAX_POWER, variance_lo, "
-     "variance_hi, HEALTH_OK, EFFORT_COMPUTED): what process_common needs of ukf.py."},
+     "variance_hi, HEALTH_OK, EFFORT_COMPUTED): what process_common needs of ukf_types.py."},
     {"process_common", (PyCFunction)(void (*)(void))process_common, METH_FASTCALL,
      "process_common(est, m) -> StepResult or None: ResistanceEstimator.process of a common sample."},
     {NULL, NULL, 0, NULL},

@@ -2,7 +2,7 @@
 
 At 10 s the train runs 200-300 m between two samples, over gradients that may change every few dozen metres: the
 track force at the samples says little about its mean over the step, and the speeds' local slopes (the time form's
-detection, :mod:`coast_regression` steps 2-3) span 60-90 s against coasts of 40-60 s. The work-energy theorem
+detection, :mod:`coast_detection`, steps 2-3) span 60-90 s against coasts of 40-60 s. The work-energy theorem
 needs neither. With E = v^2 / 2 + Gamma(s), Gamma the integral of the track force over s (``Measurement.
 track_force_integral``, exact from the track), a coast (u = 0) obeys
 
@@ -71,8 +71,8 @@ def step_grade_error(arr: RunArrays, prior: np.ndarray, min_speed: float) -> flo
 def uses_energy_form(arr: RunArrays, settings: CoastSettings, period: float, grade_error: float) -> bool:
     """The energy form applies: sparse samples (period >= ``coast_energy_period``) over gradients that change
     within a step (``grade_error``, :func:`step_grade_error` of the samples so far, at least
-    ``coast_energy_grade_error``), Gamma known at every sample, no
-    traction power (with power the power decides, :func:`candidate_steps`). Elsewhere the time form, whose
+    ``coast_energy_grade_error``), Gamma known at every sample, no traction power (with power the power decides,
+    :func:`coast_detection.candidate_steps`). Elsewhere the time form, whose
     detection is the more conservative (on the bundled lines at 10 s the energy form took traction/coast cycles at
     130 km/h for coasts: 1.1 % median error against 0.7 %, one run 6 sigma off; the median step error is 0.00-0.04
     of r on every family but the Stadelhofen profile's 10 s runs, 0.21-0.35)."""

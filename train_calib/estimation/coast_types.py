@@ -1,5 +1,6 @@
 """The coast regression's data types: its settings, the samples it looks at (RunArrays) and one coasting stretch's
-equations (Stretch); shared by the time form (:mod:`coast_regression`) and the energy form (:mod:`coast_energy`)."""
+equations (Stretch); shared by the time form (:mod:`coast_detection`, :mod:`coast_regression`) and the energy form
+(:mod:`coast_energy`)."""
 
 from __future__ import annotations
 

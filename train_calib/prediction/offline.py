@@ -28,7 +28,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import TrainCalibError
-from ..estimation.coast_regression import prior_covariance
+from ..estimation.coast_posterior import prior_covariance
 from ..estimation.config import UKFConfig
 from ..regime_codes import COASTING
 from ..sim.model import TrackTerms

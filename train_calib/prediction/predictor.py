@@ -2,7 +2,7 @@
 
 From the estimate's filtered (s, v), with the calibrated r(v) (the estimate's r0, r1, r2 and the 4x4 covariance over
 v, r0, r1, r2 from its 5x5) and with the train file's r(v) (its covariance the estimator's prior,
-:func:`train_calib.estimation.coast_regression.prior_covariance`):
+:func:`train_calib.estimation.coast_posterior.prior_covariance`):
 
 - coasting from here to the next station and to the start of the next lower speed limit: speed (m/s) and time (s)
   there, each with its sigma (:func:`.coast.coast_with_sigma`; speed 0 and time NaN where the coast stops first);
@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..estimation.coast_regression import prior_covariance
+from ..estimation.coast_posterior import prior_covariance
 from ..params import ParamSet, param
 from ..sim.limits import SpeedCeiling
 from ..sim.model import TrackTerms
