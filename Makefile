@@ -90,6 +90,7 @@ validate: $(STAMP_PKG)
 
 lint: $(STAMP_PKG)
 	$(VENV)/bin/ruff check train_calib test bench launch setup.py
+	$(VENV)/bin/ruff format --check train_calib test bench launch setup.py
 
 # Re-pin requirements/constraints.txt from the current venv (after changing a requirement).
 freeze: $(STAMP_DEPS)

@@ -174,8 +174,9 @@ def parallel_scaling(n_runs: int) -> dict:
     out = {"runs": n_runs, "samples": samples, "cores": os.cpu_count(),
            "in_process": {"wall_s": inline, "runs_per_s": n_runs / inline, "cpu_per_run_s": statistics.median(cpu)},
            "pool": {}}  # fmt: skip
-    print(f"{n_runs} runs ({samples} samples), in this process: {inline:.2f} s, {n_runs / inline:.1f} runs/s",
-          flush=True)
+    print(
+        f"{n_runs} runs ({samples} samples), in this process: {inline:.2f} s, {n_runs / inline:.1f} runs/s", flush=True
+    )
     for workers in WORKERS:
         with ProcessPoolExecutor(max_workers=workers, initializer=_init, initargs=(runs,)) as pool:
             list(pool.map(process_run, [k % n_runs for k in range(2 * workers)]))  # start and warm every worker

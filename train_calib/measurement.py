@@ -13,20 +13,20 @@ import numpy as np
 class Measurement:
     """One speed sample with its track position; fields and units as in TrackMeasurement.msg."""
 
-    stamp_ns: int               # measurement time, ns
-    s: float                    # position along the track, m
-    v: float                    # speed, m/s
-    track_force: float          # g(s) averaged over the train length, N/kg
-    dt: float = 0.0             # s since the previous measurement of this run (0 for the first)
+    stamp_ns: int  # measurement time, ns
+    s: float  # position along the track, m
+    v: float  # speed, m/s
+    track_force: float  # g(s) averaged over the train length, N/kg
+    dt: float = 0.0  # s since the previous measurement of this run (0 for the first)
     run_id: int = 0
-    s_measured: bool = True     # False: s dead-reckoned (GNSS gap); update v only
-    s_variance: float = 16.0    # m^2
+    s_measured: bool = True  # False: s dead-reckoned (GNSS gap); update v only
+    s_variance: float = 16.0  # m^2
     v_variance: float = (1.0 / 3.6) ** 2 / 12.0 + (0.5 / 3.6) ** 2  # (m/s)^2
-    cross_track: float = 0.0    # m
+    cross_track: float = 0.0  # m
     speed_limit: float = float("inf")  # m/s
     tunnel_fraction: float = 0.0
     power_valid: bool = False
-    power_consumed: float = 0.0     # W
+    power_consumed: float = 0.0  # W
     power_regenerated: float = 0.0  # W
     track_force_integral: float = float("nan")  # Gamma(s), J/kg: integral of track_force over s (NaN: unknown)
 

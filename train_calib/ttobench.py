@@ -119,9 +119,7 @@ def convert_train(
     effective = mass_kg * gamma
     r0 = _quantity(path, data, "rolling resistance r0", _FORCE)
     r1 = _quantity(path, data, "rolling resistance r1", {"kN/(km/h)": 3600.0, "N/(km/h)": 3.6, "N/(m/s)": 1.0})
-    r2 = _quantity(
-        path, data, "rolling resistance r2", {"kN/(km/h)^2": 12960.0, "N/(km/h)^2": 12.96, "N/(m/s)^2": 1.0}
-    )
+    r2 = _quantity(path, data, "rolling resistance r2", {"kN/(km/h)^2": 12960.0, "N/(km/h)^2": 12.96, "N/(m/s)^2": 1.0})
     force = _quantity(path, data, "max traction force", _FORCE)
     power = _quantity(path, data, "max traction power", _POWER)
     assert r0 is not None and r1 is not None and r2 is not None and force is not None and power is not None

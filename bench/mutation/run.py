@@ -107,8 +107,10 @@ def main() -> int:
         print(f"| {m.name} | `{m.path}` | {m.description} | {tests} | {result} |", flush=True)
     bugs = [r for m, r in zip(chosen, results) if not m.survives]
     killed = sum(r["status"] == "killed" for r in bugs)
-    print(f"score: {killed} of {len(bugs)} killed ({killed / max(len(bugs), 1):.0%})"
-          + (f"; {len(results) - len(bugs)} mutant(s) that are no bug left out" if len(bugs) < len(results) else ""))
+    print(
+        f"score: {killed} of {len(bugs)} killed ({killed / max(len(bugs), 1):.0%})"
+        + (f"; {len(results) - len(bugs)} mutant(s) that are no bug left out" if len(bugs) < len(results) else "")
+    )
     for r in results:
         print(f"  {r['name']}: {r['status']} by {r['by']}")
     args.json.parent.mkdir(parents=True, exist_ok=True)

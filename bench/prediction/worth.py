@@ -297,9 +297,11 @@ def criteria_table(results: list[dict[str, Any]]) -> str:
     """The issue's done-when per family (coasts of at least LONG_S): the calibration's r(v_ref) error against the
     estimator's bound, the calibrated model's median end-speed error against half the train file's, the truth's
     within 1 km/h, the calibrated model's 2 sigma."""
-    head = ("| family | bound % | calib. r(v_ref) err % (median) | bound met | coasts (x calibrations) | "
-            "train file km/h | calibrated km/h | calibrated / train file | truth km/h | calibrated inside 2σ | "
-            "criteria |")
+    head = (
+        "| family | bound % | calib. r(v_ref) err % (median) | bound met | coasts (x calibrations) | "
+        "train file km/h | calibrated km/h | calibrated / train file | truth km/h | calibrated inside 2σ | "
+        "criteria |"
+    )
     lines = [head, "|" + "---|" * 11]
     met_rows: list[dict[str, Any]] = []
     for g in sorted({r["group"] for r in results}):
@@ -315,8 +317,9 @@ def criteria_table(results: list[dict[str, Any]]) -> str:
                          "no coast of 2 min |")  # fmt: skip
             continue
         ratio = c["v_med"] / f["v_med"] if f["v_med"] > 0 else math.nan
-        verdict = "-" if not ok_bound else (
-            "met" if ratio <= 0.5 and t["v_med"] <= 1.0 and c["inside"] >= 0.9 else "not met")
+        verdict = (
+            "-" if not ok_bound else ("met" if ratio <= 0.5 and t["v_med"] <= 1.0 and c["inside"] >= 0.9 else "not met")
+        )
         if ok_bound:
             met_rows += [row for row in rows if row["model"] in ("train_file", "given", "truth")]
         lines.append(f"| {g} | {bound:g} | {med:.1f} | {'yes' if ok_bound else 'no'} | {f['n']} ({c['n']}) | "
@@ -358,8 +361,15 @@ def hurt_table(results: list[dict[str, Any]], min_s: float = MIN_COAST_S, margin
         d = np.array([e - err["train_file"][k] for k, e in given])
         dc = np.array([err["causal"][k] - err["train_file"][k] for k in err["causal"]])
         worse, better, cworse = d[d > margin_kmh], -d[d < -margin_kmh], dc[dc > margin_kmh]
-        cells = [g, str(len(d)), f"{len(worse)} ({len(worse) / len(d) * 100:.0f} %)", spread(worse),
-                 f"{np.median(better):.2f}" if better.size else "-", f"{len(cworse)} of {len(dc)}", spread(cworse)]
+        cells = [
+            g,
+            str(len(d)),
+            f"{len(worse)} ({len(worse) / len(d) * 100:.0f} %)",
+            spread(worse),
+            f"{np.median(better):.2f}" if better.size else "-",
+            f"{len(cworse)} of {len(dc)}",
+            spread(cworse),
+        ]
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
@@ -406,9 +416,14 @@ def stats(rows: list[dict[str, Any]], model: str, min_s: float) -> dict[str, Any
 
 def table(results: list[dict[str, Any]], models: tuple[str, ...], min_s: float) -> str:
     groups = sorted({r["group"] for r in results})
-    head = "| group | runs | calib. r(v_ref) err %, median | coasts | " + " | ".join(
-        f"{m}: end speed err km/h med / p90 | {m}: duration err % med / p90 | {m}: inside 2σ (median 2σ, km/h)"
-        for m in models) + " |"
+    head = (
+        "| group | runs | calib. r(v_ref) err %, median | coasts | "
+        + " | ".join(
+            f"{m}: end speed err km/h med / p90 | {m}: duration err % med / p90 | {m}: inside 2σ (median 2σ, km/h)"
+            for m in models
+        )
+        + " |"
+    )
     lines = [head, "|" + "---|" * (4 + 3 * len(models))]
     for g in [*groups, "ALL"]:
         rs = [r for r in results if g in ("ALL", r["group"])]

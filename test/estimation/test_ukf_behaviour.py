@@ -86,7 +86,15 @@ def test_process_and_the_trace_api():
         assert isinstance(r, StepResult) and r._fields[:3] == ("s", "v", "r0")
         assert np.array_equal(unpack(r.covariance), sample.covariance)
         assert (r.s, r.v, r.r0, r.r1, r.r2, r.effort, r.nis, r.health) == (
-            sample.s, sample.v, sample.r0, sample.r1, sample.r2, sample.effort, sample.nis, sample.health)
+            sample.s,
+            sample.v,
+            sample.r0,
+            sample.r1,
+            sample.r2,
+            sample.effort,
+            sample.nis,
+            sample.health,
+        )
         assert (r.effort_source != EFFORT_COMPUTED) == sample.effort_known
     a.flush()
     assert a.trace is trace and [t.arrival for t in trace] == list(range(1, len(series) + 1))

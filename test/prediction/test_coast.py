@@ -119,6 +119,7 @@ def test_the_start_speed_takes_the_gradient_out_of_its_line():
     r = np.array(train.davis.as_tuple())
     worst_plain = 0.0
     for s0 in (6000.0, 14000.0, 21000.0):
+
         def rhs(_t, y):
             g = float(track.track_force(y[0], train.length_m))
             return [y[1], -(r[0] + r[1] * y[1] + r[2] * y[1] ** 2) - g]

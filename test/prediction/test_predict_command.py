@@ -112,8 +112,12 @@ def test_bad_resistance_is_one_line_and_exit_2(resistance, expected, tmp_path, c
 
     (tmp_path / "other.json").write_text(json.dumps({"train": {"name": "ICRm"}, "final": {}}), encoding="utf-8")
     (tmp_path / "bad.json").write_text("{not json", encoding="utf-8")
-    pq.write_table(pa.table({"unit": ["a", "b"], **{k: [0.1, 0.1] for k in
-                             ("r40", "r80", "r120", "r40_std", "r80_std", "r120_std")}}), tmp_path / "units.parquet")
+    pq.write_table(
+        pa.table(
+            {"unit": ["a", "b"], **{k: [0.1, 0.1] for k in ("r40", "r80", "r120", "r40_std", "r80_std", "r120_std")}}
+        ),
+        tmp_path / "units.parquet",
+    )
     arg = {"OTHER_TRAIN": str(tmp_path / "other.json"), "NOT_JSON": str(tmp_path / "bad.json")}.get(resistance)
     if arg is None:
         arg = str(tmp_path / resistance) if resistance.startswith(("units", "missing")) else resistance

@@ -77,8 +77,9 @@ def run(args: argparse.Namespace) -> int:
         "coasts": len(coasts),
         "models": model_stats(rows),
         "models_coasts_2min": model_stats(rows, 120.0),
-        "given": None if given is None else {"source": given.source, "r0": given.r[0], "r1": given.r[1],
-                                              "r2": given.r[2]},
+        "given": None
+        if given is None
+        else {"source": given.source, "r0": given.r[0], "r1": given.r[1], "r2": given.r[2]},
         "traction_energy": traction_energy(output, train, given),
     }
     if not coasts:

@@ -185,7 +185,6 @@ class _Lanes:
     iterations: int
 
 
-
 def _cap_w_t(cap: dict, rows: np.ndarray, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(w, T) of the piecewise-linear cap (in w = v^2/2) at positions s of members rows: w and the time from the
     start (closed form on each linear piece)."""
@@ -200,6 +199,7 @@ def _cap_w_t(cap: dict, rows: np.ndarray, s: np.ndarray) -> tuple[np.ndarray, np
         w = np.maximum(wa + (wb - wa) * frac, 0.0)
         dt = np.where(s > sa, 2.0 * (s - sa) / (np.sqrt(2.0 * wa) + np.sqrt(2.0 * w)), 0.0)
     return w, ct.ravel()[j] + dt
+
 
 class ProfileBatch:
     """Minimum-time profiles of n parameter vectors between two stops (see the module docstring).

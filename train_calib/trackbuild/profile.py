@@ -37,7 +37,7 @@ def _pairs(path: Path, data: dict, key: str) -> list[tuple[float, float]]:
         return []
     values = entry.get("values") if isinstance(entry, dict) else None
     if not isinstance(values, list):
-        raise ConfigError(str(path), key, "expected {\"values\": [[position, value], ...]}")
+        raise ConfigError(str(path), key, 'expected {"values": [[position, value], ...]}')
     out = []
     for i, v in enumerate(values):
         if not (isinstance(v, list) and len(v) >= 2 and all(isinstance(x, (int, float)) for x in v[:2])):
