@@ -10,7 +10,7 @@ import pytest
 
 from train_calib import paths
 from train_calib.report import build_report, flag_spans, tunnel_time_spans, write_report
-from train_calib.summary import Outputs
+from train_calib.summary_outputs import Outputs
 from train_calib.track import load_track
 from train_calib.train import load_train
 from train_calib.window.fit import WindowFit

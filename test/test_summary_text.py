@@ -1,10 +1,10 @@
-"""The printed summary (summary.format_summary) says what the outputs hold: the configuration, r(v) with sigma on
+"""The printed summary (summary_text.format_summary) says what the outputs hold: the configuration, r(v) with sigma on
 board and over the whole run, and for the window calibration what was published (issue 21: it said "nothing
 published" while every window message was there, ill-posed)."""
 
 from __future__ import annotations
 
-from train_calib.summary import format_summary
+from train_calib.summary_text import format_summary
 
 POOLED = {"r0": 0.01, "r1": 1e-4, "r2": 4e-5, "covariance": [[1e-6, 0, 0], [0, 1e-10, 0], [0, 0, 1e-12]], "windows": 9}
 ROW = {"value": 0.03, "std": 0.002, "manufacturer": 0.025}

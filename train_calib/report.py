@@ -35,7 +35,7 @@ from typing import Any
 
 import numpy as np
 
-from .summary import COEFFS, UNITS, Outputs
+from .summary_outputs import COEFFS, UNITS, Outputs
 from .track import Track
 from .train import TrainSpec
 

@@ -18,7 +18,8 @@ from window_synthetic import TRUTH, euler_run, train_spec
 
 from train_calib.nodes.window_calib_node import window_to_msg
 from train_calib.pipeline import run_measurements
-from train_calib.summary import window_pooled, window_pooled_from_msg
+from train_calib.summary import window_pooled
+from train_calib.summary_outputs import window_pooled_from_msg
 from train_calib.train import Davis
 from train_calib.window import WindowCalibrator, WindowConfig, WindowFit
 from train_calib.window.pooled import PooledResistance, WindowEquation, prior_covariance

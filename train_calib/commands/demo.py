@@ -43,7 +43,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..summary import format_summary
+    from ..summary_text import format_summary
 
     bag = Path(args.bag)
     if not bag.exists():

@@ -360,7 +360,7 @@ def report_input_error(command: str, summary: dict[str, Any]) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..summary import format_summary
+    from ..summary_text import format_summary
 
     out = args.out or Path("out") / bag_name(args.bag)
     summary = execute(args, out, args.track, args.train)

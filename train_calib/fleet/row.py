@@ -26,7 +26,8 @@ import pyarrow as pa
 from .. import __version__
 from ..errors import BagError
 from ..regime_codes import REGIME_NAMES
-from ..summary import REFERENCE_SPEEDS_KMH, resistance_at_speeds
+from ..summary import resistance_at_speeds
+from ..summary_outputs import REFERENCE_SPEEDS_KMH
 
 KEY_VERSION = f"train_calib {__version__} fleet 1"  # part of the run key: a new version recomputes
 

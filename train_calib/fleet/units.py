@@ -32,7 +32,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from ..summary import REFERENCE_SPEEDS_KMH
+from ..summary_outputs import REFERENCE_SPEEDS_KMH
 
 YEAR_S = 365.25 * 86400.0
 T_REF_S = 1577836800.0  # 2020-01-01T00:00:00Z: dates in years from it
