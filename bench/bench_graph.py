@@ -481,7 +481,7 @@ def main() -> int:
             + ", ".join(f"{k} {v['work_us']:.0f} us" for k, v in per.items())
             + f", /diagnostics {sum(v['diagnostics_us'] for v in per.values()):.0f} us. The SingleThreadedExecutor "
             f"(rclpy's default) makes both chains about 5x slower (its Python wait-set rebuild per callback); the "
-            f"replay keeps the EventsExecutor (see train_calib/nodes/common.py make_executor).",
+            f"replay keeps the EventsExecutor (see train_calib/nodes/runner.py make_executor).",
         ]
     with tempfile.TemporaryDirectory(prefix="bench_latency_") as tmp:
         results["latency"] = lat = latency(args.latency_seconds, Path(tmp))

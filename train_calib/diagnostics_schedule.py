@@ -1,4 +1,4 @@
-"""When a node publishes its /diagnostics status in the data's time (ROS-free core of nodes/common.py).
+"""When a node publishes its /diagnostics status in the data's time (ROS-free core of nodes/diagnostics.py).
 
 On board the nodes publish on a timer of the node clock (wall time). Under ``use_sim_time`` (a replay, or
 ``ros2 bag play --clock``) a timer of the simulated clock fires once per jump of ``/clock``, however many periods

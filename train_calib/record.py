@@ -221,7 +221,7 @@ class Recorder:
         (``train-calib replay --live``). `sim_clock`: log times from /clock, followed here rather than by the node's
         use_sim_time (whose callback dies on a /clock before 1970, e.g. from a damaged bag): a /clock message that is
         not a valid time is counted in ``undecodable`` and the recording goes on with the last valid one."""
-        from .nodes.common import reliable_qos
+        from .nodes.qos import reliable_qos
 
         self.node = node
         self.writer = writer

@@ -18,7 +18,7 @@ Nodes run in this process on one executor (the rclpy EventsExecutor when availab
 SingleThreadedExecutor), or each in its own process (``processes=True``), watched through
 ``/train_calib/progress``. The EventsExecutor is the default because it is the faster one for this graph:
 3.6-5x the samples per second of the SingleThreadedExecutor at rate 0 (bench/bench_graph.py; the measurements
-and the reason are in :func:`train_calib.nodes.common.make_executor`).
+and the reason are in :func:`train_calib.nodes.runner.make_executor`).
 """
 
 from __future__ import annotations
@@ -180,7 +180,7 @@ class Replay(FlowControl):
         from builtin_interfaces.msg import Time
         from rosgraph_msgs.msg import Clock
 
-        from .nodes.common import reliable_qos
+        from .nodes.qos import reliable_qos
         from .record import McapBagWriter, Recorder, message_class
 
         self.node = rclpy.create_node("train_calib_replay", context=context)
@@ -203,7 +203,7 @@ class Replay(FlowControl):
         import rclpy
         from rosgraph_msgs.msg import Clock
 
-        from .nodes.common import reliable_qos
+        from .nodes.qos import reliable_qos
         from .record import message_class
 
         self.live_node = None
@@ -359,7 +359,7 @@ class Replay(FlowControl):
         return where + ("; inputs, /clock and outputs also published to your environment (--live)" if o.live else "")
 
     def _make_executor(self, context: Any) -> tuple[Any, str]:
-        from .nodes.common import make_executor
+        from .nodes.runner import make_executor
 
         executor = make_executor(context, self.o.executor)
         return executor, type(executor).__name__

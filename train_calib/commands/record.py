@@ -35,7 +35,7 @@ def run(args: argparse.Namespace) -> int:
     from rclpy.context import Context
     from rclpy.signals import SignalHandlerOptions
 
-    from ..nodes.common import make_executor
+    from ..nodes.runner import make_executor
     from ..record import McapBagWriter, Recorder
 
     known = OUTPUT_TOPICS | INPUT_TOPICS

@@ -62,22 +62,21 @@ Writing a node (e.g. ``window_calib_node.py``)::
         return run_node(WindowCalibNode, args)
 
 ``graph.NODE_MODULES`` maps the node name to its module and class for the replay.
+
+The pieces live in modules of their own, re-exported here: ``ros_params`` (a ParamSpec as a ROS parameter),
+``qos`` (the profiles), ``diagnostics`` (``NodeDiagnostics``, the base class that builds and publishes the status),
+``runner`` (``make_executor``, ``run_node``).
 """
 
 from __future__ import annotations
 
-import math
 import os
-import signal
-import sys
-import threading
 from collections import Counter
 from collections.abc import Callable, Iterable, Sequence
 from typing import Any
 
-import rclpy
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult
+from diagnostic_msgs.msg import DiagnosticStatus
+from rcl_interfaces.msg import SetParametersResult
 from rclpy.clock import Clock, ClockType
 from rclpy.context import Context
 from rclpy.duration import Duration
@@ -86,158 +85,32 @@ from rclpy.exceptions import (
     InvalidParameterValueException,
     ParameterException,
 )
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
-from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
-from rclpy.node import Node
 from rclpy.parameter import Parameter
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.qos import QoSProfile
 from rclpy.serialization import deserialize_message
-from rclpy.signals import SignalHandlerOptions
 from std_msgs.msg import String
 
-from ..diagnostics_schedule import DiagnosticsSchedule
 from ..errors import ConfigError
 from ..params import ParamSet, ParamSpec
 from . import cdr
 from .config import NODE_PARAMS, NodeConfig
-from .slots import bare, check_layout
+from .diagnostics import DIAGNOSTICS_TOPIC, ERROR, HARDWARE_ID, OK, WARN, NodeDiagnostics, RateMeter, key_value
+from .qos import CONTROL_QOS, DIAGNOSTICS_QOS, reliable_qos, sensor_qos
+from .ros_params import _coerced_override, _ros_value, check_params_files, descriptor_for
+from .runner import RCLError, make_executor, run_node
 
-DIAGNOSTICS_TOPIC = "/diagnostics"
 PROGRESS_TOPIC = "/train_calib/progress"
 END_OF_INPUT_TOPIC = "/train_calib/end_of_input"
-HARDWARE_ID = "train_calib"
 ERROR_REASON = "error"
 PROGRESS_PERIOD_S = 0.2
 FINISH_ACK_TIMEOUT_S = 2.0
 RCLPY_DESERIALIZE_ENV = "TRAIN_CALIB_RCLPY_DESERIALIZE"  # 1: inputs decoded by rclpy, not by cdr (a debugging aid)
 
-# DiagnosticStatus.level is a ROS `byte`: rclpy wants bytes of length 1; these are ints for comparisons
-OK = 0
-WARN = 1
-ERROR = 2
-
-_INT64_MAX = 2**63 - 1
-RCLError = _rclpy.RCLError
-
-check_layout(KeyValue)  # the slots key_value() fills
-
-
-def key_value(key: str, value: str) -> KeyValue:
-    """A diagnostic_msgs/KeyValue without the generated constructor's cost (a diagnostics array holds dozens)."""
-    kv = bare(KeyValue)
-    kv._key = key
-    kv._value = value
-    return kv
-
-
-# -- QoS --------------------------------------------------------------------------------------------
-
-
-def sensor_qos(depth: int) -> QoSProfile:
-    """Inputs from the on-board stack: best effort (hears reliable and best-effort publishers), volatile."""
-    return QoSProfile(
-        history=HistoryPolicy.KEEP_LAST,
-        depth=depth,
-        reliability=ReliabilityPolicy.BEST_EFFORT,
-        durability=DurabilityPolicy.VOLATILE,
-    )
-
-
-def reliable_qos(depth: int) -> QoSProfile:
-    """Outputs and the subscriptions between train_calib nodes: reliable, volatile, keep last `depth`."""
-    return QoSProfile(
-        history=HistoryPolicy.KEEP_LAST,
-        depth=depth,
-        reliability=ReliabilityPolicy.RELIABLE,
-        durability=DurabilityPolicy.VOLATILE,
-    )
-
-
-DIAGNOSTICS_QOS = reliable_qos(100)
-CONTROL_QOS = reliable_qos(100)
-
-
-# -- parameters -------------------------------------------------------------------------------------
-
-
-def descriptor_for(spec: ParamSpec) -> ParameterDescriptor:
-    """The ROS parameter descriptor of a ParamSet field: description, range, choices, read-only."""
-    d = ParameterDescriptor(description=spec.doc, read_only=bool(spec.read_only))
-    if spec.kind is float and (spec.low is not None or spec.high is not None):
-        d.floating_point_range = [
-            FloatingPointRange(
-                from_value=-math.inf if spec.low is None else float(spec.low),
-                to_value=math.inf if spec.high is None else float(spec.high),
-                step=0.0,
-            )
-        ]
-    elif spec.kind is int and (spec.low is not None or spec.high is not None):
-        d.integer_range = [
-            IntegerRange(
-                from_value=-_INT64_MAX if spec.low is None else math.ceil(spec.low),
-                to_value=_INT64_MAX if spec.high is None else math.floor(spec.high),
-                step=0,
-            )
-        ]
-    constraints = []
-    if spec.low_open and spec.low is not None:
-        constraints.append(f"must be greater than {spec.low:g}")
-    if spec.choices:
-        constraints.append("one of: " + ", ".join(spec.choices))
-    if spec.kind is tuple and (spec.low is not None or spec.high is not None):
-        constraints.append("every element " + spec.doc.rsplit("range ", 1)[-1])
-    d.additional_constraints = "; ".join(constraints)
-    return d
-
-
-def _ros_value(spec: ParamSpec, value: Any) -> Any:
-    if spec.kind is tuple:
-        return [float(v) for v in value]
-    return value
-
-
-def _coerced_override(spec: ParamSpec, override: Parameter) -> Parameter:
-    """An INTEGER (array) override of a double (array) parameter, as a double: `30` in a params file."""
-    if spec.kind is float and override.type_ == Parameter.Type.INTEGER:
-        return Parameter(override.name, Parameter.Type.DOUBLE, float(override.value))
-    if spec.kind is tuple and override.type_ == Parameter.Type.INTEGER_ARRAY:
-        return Parameter(override.name, Parameter.Type.DOUBLE_ARRAY, [float(v) for v in override.value])
-    return override
-
-
-class RateMeter:
-    """Messages per second between two reports, in the reports' time base: the node clock, or under use_sim_time
-    the inputs' stamps (the data's time, as the diagnostics schedule).
-
-    Counting costs nothing per message (no clock read); the time of the last message is known to the
-    report period, which is all the input-timeout check needs.
-    """
-
-    __slots__ = ("count", "last_ns", "rate", "since_ns")
-
-    def __init__(self) -> None:
-        self.count = 0
-        self.last_ns: int | None = None  # node clock of the report that first saw the latest messages
-        self.since_ns: int | None = None
-        self.rate = math.nan
-
-    def take(self, now_ns: int) -> float:
-        """Rate since the previous take (Hz); the previous value while no node time has passed."""
-        if self.count:
-            self.last_ns = now_ns
-        if self.since_ns is not None and now_ns > self.since_ns:
-            self.rate = self.count / ((now_ns - self.since_ns) * 1e-9)
-        elif self.since_ns is not None:
-            return self.rate
-        self.count = 0
-        self.since_ns = now_ns
-        return self.rate
-
 
 # -- the node base class ----------------------------------------------------------------------------
 
 
-class TrainCalibNode(Node):
+class TrainCalibNode(NodeDiagnostics):
     """Base of the train_calib nodes: parameters, counted inputs/outputs, diagnostics, end of input."""
 
     NODE_NAME = ""
@@ -282,13 +155,7 @@ class TrainCalibNode(Node):
         self._input_topics: list[str] = []
         self._ended = False
         self._finished = False
-        self.diagnostics_published = 0
-        self._diag_pub = self.create_publisher(DiagnosticArray, DIAGNOSTICS_TOPIC, DIAGNOSTICS_QOS)
-        # the node clock's timer on board; under sim time the data's stamps (diagnostics_schedule: rate-independent)
-        self._diag_schedule: DiagnosticsSchedule | None = None
-        self._data_now_ns: int | None = None  # under the schedule: the latest input stamp, the reports' time base
-        self._diag_timer = None
-        self._start_diagnostics(node_cfg.diagnostics_period)
+        self._init_diagnostics(node_cfg.diagnostics_period)
         self._progress_pub = None
         if node_cfg.report_progress:  # replay control: progress out, end of input in
             self._eoi_sub = self.create_subscription(String, END_OF_INPUT_TOPIC, self._on_end_of_input, CONTROL_QOS)
@@ -366,20 +233,6 @@ class TrainCalibNode(Node):
             self.on_parameters_changed(set(candidates))
         if NodeConfig in candidates:
             self._start_diagnostics(self.config(NodeConfig).diagnostics_period)
-
-    def _start_diagnostics(self, period_s: float) -> None:
-        """/diagnostics every ``period_s``: a timer of the node clock, or under ``use_sim_time`` the data's time (a
-        DiagnosticsSchedule asked with each input's stamp; a sim-time timer fires once per jump of /clock, so its
-        count followed the replay rate)."""
-        if self._diag_timer is not None:
-            self._diag_timer.cancel()
-            self.destroy_timer(self._diag_timer)
-            self._diag_timer = None
-        if self.get_parameter("use_sim_time").value:
-            self._diag_schedule = DiagnosticsSchedule(period_s)
-        else:
-            self._diag_schedule = None
-            self._diag_timer = self.create_timer(period_s, self.publish_diagnostics)
 
     def check_config(self, cfg: ParamSet) -> str | None:
         """Node-specific check of a changed config (e.g. a station must exist); a reason refuses it."""
@@ -536,148 +389,6 @@ class TrainCalibNode(Node):
         for pub in [*self._publishers_by_topic.values(), self._diag_pub]:
             pub.wait_for_all_acked(Duration(seconds=ack_timeout_s))
 
-    # -- diagnostics ----------------------------------------------------------------------------
-    def diagnostic_values(self) -> list[tuple[str, Any]]:
-        """Node-specific (key, value) pairs appended to the status (override)."""
-        return []
-
-    def diagnostic_problems(self) -> list[tuple[int, str]]:
-        """Node-specific (level, message) problems: WARN or ERROR (override)."""
-        return []
-
-    def refresh_counters(self) -> None:
-        """Copy a core object's counters into the node's (override; called before each report)."""
-
-    def diagnostic_status(self) -> DiagnosticStatus:
-        self.refresh_counters()
-        # the input rates and timeouts in the time the reports follow: the data's stamps under the schedule (the sim
-        # clock lags the data at --rate 0, so a rate over it was not the data's), the node clock otherwise
-        data_now = self._data_now_ns if self._diag_schedule is not None else None
-        now_ns = data_now if data_now is not None else self.get_clock().now().nanoseconds
-        timeout_ns = self.config(NodeConfig).input_timeout * 1e9
-        values: list[KeyValue] = []
-        add = values.append
-        problems: list[tuple[int, str]] = []
-        for topic in self._input_topics:
-            meter = self._rates[topic]
-            rate = meter.take(now_ns)
-            add(key_value(f"{topic} rate (Hz)", "nan" if math.isnan(rate) else f"{rate:.3f}"))
-            add(key_value(f"{topic} received", str(self._received[topic])))
-            drops, repairs = self._drops.get(topic), self._repairs.get(topic)
-            if drops:
-                values += [key_value(f"{topic} dropped {reason}", str(n)) for reason, n in sorted(drops.items())]
-            if repairs:
-                values += [key_value(f"{topic} repaired {reason}", str(n)) for reason, n in sorted(repairs.items())]
-            if meter.last_ns is not None and now_ns - meter.last_ns > timeout_ns:
-                problems.append((WARN, f"no {topic} for {(now_ns - meter.last_ns) * 1e-9:.0f} s"))
-        for topic in self._publishers_by_topic:
-            add(key_value(f"{topic} published", str(self._published[topic])))
-        values += [key_value(str(k), str(v)) for k, v in self.diagnostic_values()]
-        problems.extend(self.diagnostic_problems())
-        level = max((lvl for lvl, _ in problems), default=OK)
-        dropped = sum(sum(c.values()) for c in self._drops.values())
-        message = "; ".join(text for _, text in problems) if problems else f"OK ({dropped} samples dropped)"
-        return DiagnosticStatus(
-            level=bytes([level]), name=self.get_name(), message=message, hardware_id=HARDWARE_ID, values=values
-        )
-
-    def publish_diagnostics(self) -> None:
-        array = DiagnosticArray()
-        array.header.stamp = self.get_clock().now().to_msg()
-        array.status = [self.diagnostic_status()]
-        self._diag_pub.publish(array)
-        self.diagnostics_published += 1
-
-
-# -- main() of every node ---------------------------------------------------------------------------
-
-
-def make_executor(context: Context, kind: str | None = None) -> Any:
-    """The executor: ``events`` (rclpy's EventsExecutor, much lower latency) when available, else ``single``
-    (SingleThreadedExecutor). Chosen by `kind`, else the TRAIN_CALIB_EXECUTOR environment variable.
-
-    Why ``events`` is the default, measured with bench/bench_graph.py (bags/tunnel_line_37km_1s_00 replayed at
-    rate 0; bench/RESULTS.md, section 3, the latest figures): the four estimator nodes handle 1501 speed samples/s
-    with it and 285 with ``single`` (5.3x). Against a bare rclpy relay chain with the same hops and messages on the
-    same executor, the graph reaches 74 % with ``events`` (the whole graph with window_calib_node: 72 %) and 80 %
-    with ``single``: the nodes' own Python work (about 0.45 ms per speed sample over the raw chain: gnss_speed_node
-    0.13, ukf_node 0.13, regime_node 0.08, feature_node 0.04, window_calib_node 0.10 ms) is the same under both
-    executors and weighs less against the SingleThreadedExecutor's slower chain, which rebuilds its wait set in
-    Python before every callback (the bare chain: about 2.8 ms per sample with it, 0.49 ms with ``events``). So the
-    lower ratio of ``events`` comes from a faster baseline, not from a slower graph: with ``events`` the graph misses
-    issue 9's 80 % (74 / 72 %), and ``single`` reaches it only by cutting the throughput 5x.
-    """
-    kind = kind or os.environ.get("TRAIN_CALIB_EXECUTOR", "events")
-    if kind == "events":
-        try:
-            from rclpy.experimental import EventsExecutor
-        except ImportError:
-            return SingleThreadedExecutor(context=context)
-        # EventsExecutor enables faulthandler on sys.stderr, which needs a real file (not a capture)
-        stderr = sys.stderr
-        try:
-            sys.stderr.fileno()
-        except (AttributeError, OSError, ValueError):
-            sys.stderr = sys.__stderr__
-        try:
-            return EventsExecutor(context=context)
-        finally:
-            sys.stderr = stderr
-    return SingleThreadedExecutor(context=context)
-
-
-def check_params_files(argv: Sequence[str]) -> None:
-    """ConfigError (one line: file and problem) for a ``--params-file`` that cannot be read or is not a mapping."""
-    from ..yamlcheck import load_yaml_mapping
-
-    for i, arg in enumerate(argv):
-        if arg == "--params-file" and i + 1 < len(argv):
-            load_yaml_mapping(argv[i + 1], "params file")
-
-
-def run_node(node_cls: type[TrainCalibNode], args: Sequence[str] | None = None) -> int:
-    """Spin one node until SIGINT/SIGTERM, then finish it cleanly; 2 with a one-line error on bad config."""
-    argv = list(args) if args is not None else list(sys.argv)
-    context = Context()
-    try:
-        check_params_files(argv)
-        rclpy.init(args=argv, context=context, signal_handler_options=SignalHandlerOptions.NO)
-    except ConfigError as exc:
-        print(f"{node_cls.NODE_NAME}: error: {exc}", file=sys.stderr)
-        return 2
-    except RCLError as exc:  # a ROS argument rcl refuses: its first line, without the C source locations
-        print(f"{node_cls.NODE_NAME}: error: {str(exc).splitlines()[0].split(', at /')[0]}", file=sys.stderr)
-        return 2
-    stop = threading.Event()
-
-    def on_signal(signum: int, frame: Any) -> None:
-        stop.set()
-
-    previous = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
-    try:
-        try:
-            node = node_cls(context=context)
-        except ConfigError as exc:
-            print(f"{node_cls.NODE_NAME}: error: {exc}", file=sys.stderr)
-            return 2
-        executor = make_executor(context)
-        executor.add_node(node)
-        try:
-            while not stop.is_set() and context.ok():
-                executor.spin_once(timeout_sec=0.1)
-        except (KeyboardInterrupt, ExternalShutdownException):
-            pass
-        finally:
-            if context.ok():
-                node.finish()
-            executor.shutdown()
-            node.destroy_node()
-        return 0
-    finally:
-        rclpy.try_shutdown(context=context)
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
-
 
 __all__ = [
     "CONTROL_QOS",
@@ -685,14 +396,22 @@ __all__ = [
     "DIAGNOSTICS_TOPIC",
     "END_OF_INPUT_TOPIC",
     "ERROR",
+    "ERROR_REASON",
+    "FINISH_ACK_TIMEOUT_S",
+    "HARDWARE_ID",
     "OK",
+    "PROGRESS_PERIOD_S",
     "PROGRESS_TOPIC",
+    "RCLPY_DESERIALIZE_ENV",
     "WARN",
+    "NodeDiagnostics",
+    "RCLError",
     "RateMeter",
     "TrainCalibNode",
     "check_params_files",
     "descriptor_for",
     "key_value",
+    "make_executor",
     "reliable_qos",
     "run_node",
     "sensor_qos",

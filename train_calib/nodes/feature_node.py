@@ -16,9 +16,10 @@ from train_calib_msgs.msg import DrivingFeatures, DrivingRegime
 from ..estimation import FeatureConfig, Features
 from ..params import ParamSet
 from ..pipeline import FeatureStream
-from .common import TrainCalibNode, run_node
+from .common import TrainCalibNode
 from .config import FEATURES_TOPIC, REGIME_TOPIC
 from .convert import features_to_msg, phase_from_msg, regime_input_from_msg
+from .runner import run_node
 
 
 class FeatureNode(TrainCalibNode):

@@ -31,9 +31,11 @@ from ..measurement import Measurement
 from ..params import ParamSet
 from ..track import load_track
 from ..train import load_train
-from .common import WARN, TrainCalibNode, run_node
+from .common import TrainCalibNode
 from .config import MEASUREMENT_TOPIC, TrackTrainFiles
 from .convert import measurement_to_cdr
+from .diagnostics import WARN
+from .runner import run_node
 
 STREAM_TOPICS = {GNSS: GNSS_TOPIC, SPEED: SPEED_TOPIC, POWER: POWER_TOPIC}
 

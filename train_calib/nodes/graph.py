@@ -29,7 +29,8 @@ from rclpy.parameter import Parameter
 from std_msgs.msg import String
 
 from ..errors import TrainCalibError
-from .common import CONTROL_QOS, END_OF_INPUT_TOPIC, PROGRESS_TOPIC, TrainCalibNode
+from .common import END_OF_INPUT_TOPIC, PROGRESS_TOPIC, TrainCalibNode
+from .qos import CONTROL_QOS
 
 NODE_MODULES = {
     "gnss_speed_node": ("train_calib.nodes.gnss_speed_node", "GnssSpeedNode"),

@@ -21,9 +21,11 @@ from ..prediction import PredictionConfig, Predictor
 from ..prediction.predictor import Prediction as PredictionRecord
 from ..track import load_track
 from ..train import load_train
-from .common import WARN, TrainCalibNode, run_node
+from .common import TrainCalibNode
 from .config import PREDICTION_TOPIC, RESISTANCE_TOPIC, TrackTrainFiles
 from .convert import header_msg, stamp_to_ns
+from .diagnostics import WARN
+from .runner import run_node
 
 COST_WARN_S = 0.05
 """A prediction slower than this (s) is reported as WARN in /diagnostics."""

@@ -38,9 +38,10 @@ from ..estimation.regime_model import power_state
 from ..params import ParamSet
 from ..pipeline import RegimeStream
 from ..train import load_train
-from .common import TrainCalibNode, run_node
+from .common import TrainCalibNode
 from .config import MEASUREMENT_TOPIC, REGIME_TOPIC, RESISTANCE_TOPIC, TrainFile
 from .convert import regime_input_from_msg, regime_to_cdr, stamp_to_ns
+from .runner import run_node
 
 MEASUREMENT_WAIT = 30
 """Estimates held at most waiting for their measurement's power state (none comes: the speeds alone)."""

@@ -21,9 +21,11 @@ from ..estimation import HEALTH_DEGRADED, HEALTH_OK, HEALTH_REPAIRED, HEALTH_RES
 from ..estimation.safeguards import SafeguardConfig
 from ..params import ParamSet
 from ..train import load_train
-from .common import ERROR, WARN, TrainCalibNode, run_node
+from .common import TrainCalibNode
 from .config import MEASUREMENT_TOPIC, RESISTANCE_TOPIC, TrainFile
 from .convert import estimate_to_cdr, measurement_from_msg
+from .diagnostics import ERROR, WARN
+from .runner import run_node
 
 HEALTH_NAMES = {HEALTH_OK: "ok", HEALTH_REPAIRED: "repaired", HEALTH_DEGRADED: "degraded", HEALTH_RESET: "reset"}
 

@@ -28,9 +28,11 @@ from ..regime_codes import regime_name
 from ..train import load_train
 from ..window import WindowCalibrator, WindowConfig, WindowFit
 from .cdr import layout
-from .common import WARN, TrainCalibNode, run_node
+from .common import TrainCalibNode
 from .config import MEASUREMENT_TOPIC, REGIME_TOPIC, WINDOW_TOPIC, TrainFile
 from .convert import measurement_from_msg, message_with_header, phase_from_msg, stamp_to_ns, to_cdr
+from .diagnostics import WARN
+from .runner import run_node
 
 _WINDOW_LAYOUT = layout(WindowResistance)
 _NAN9 = (math.nan,) * 9  # pooled_covariance of a WindowFit that carries none
