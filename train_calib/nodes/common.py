@@ -96,7 +96,7 @@ from . import cdr
 from .config import NODE_PARAMS, NodeConfig
 from .diagnostics import DIAGNOSTICS_TOPIC, ERROR, HARDWARE_ID, OK, WARN, NodeDiagnostics, RateMeter, key_value
 from .qos import CONTROL_QOS, DIAGNOSTICS_QOS, reliable_qos, sensor_qos
-from .ros_params import _coerced_override, _ros_value, check_params_files, descriptor_for
+from .ros_params import check_params_files, coerced_override, descriptor_for, ros_value
 from .runner import RCLError, make_executor, run_node
 
 PROGRESS_TOPIC = "/train_calib/progress"
@@ -177,9 +177,9 @@ class TrainCalibNode(NodeDiagnostics):
         overrides = getattr(self, "_parameter_overrides", {})  # rclpy's: --params-file, -p, parameter_overrides
         for owner, spec in specs:
             if spec.name in overrides:
-                overrides[spec.name] = _coerced_override(spec, overrides[spec.name])
+                overrides[spec.name] = coerced_override(spec, overrides[spec.name])
             try:
-                self.declare_parameter(spec.name, _ros_value(spec, spec.default), descriptor_for(spec))
+                self.declare_parameter(spec.name, ros_value(spec, spec.default), descriptor_for(spec))
             except (InvalidParameterTypeException, InvalidParameterValueException) as exc:
                 # the ParamSet's reason (units, open bounds) when it has one, else rclpy's
                 value = overrides[spec.name].value if spec.name in overrides else spec.default

@@ -45,13 +45,14 @@ def descriptor_for(spec: ParamSpec) -> ParameterDescriptor:
     return d
 
 
-def _ros_value(spec: ParamSpec, value: Any) -> Any:
+def ros_value(spec: ParamSpec, value: Any) -> Any:
+    """A ParamSet value as rclpy declares it (a tuple parameter as a list of floats)."""
     if spec.kind is tuple:
         return [float(v) for v in value]
     return value
 
 
-def _coerced_override(spec: ParamSpec, override: Parameter) -> Parameter:
+def coerced_override(spec: ParamSpec, override: Parameter) -> Parameter:
     """An INTEGER (array) override of a double (array) parameter, as a double: `30` in a params file."""
     if spec.kind is float and override.type_ == Parameter.Type.INTEGER:
         return Parameter(override.name, Parameter.Type.DOUBLE, float(override.value))
