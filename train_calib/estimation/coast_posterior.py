@@ -1,6 +1,7 @@
 """The coast regression's Bayesian step (step 6, :mod:`coast_regression`): the prior N(train file, P0) in
-information form, each coast's equations added with their common error, the posterior and its projection onto
-r >= 0.
+information form, each coast's equations added with their common error (in the energy form, over the
+configurations of its stretches' uncertain ends: :func:`add_coast_with_ends`), the posterior and its projection
+onto r >= 0.
 """
 
 from __future__ import annotations
@@ -37,9 +38,21 @@ def prior_information(prior: np.ndarray, P0: np.ndarray) -> tuple[np.ndarray, np
     return info_matrix, info_matrix @ prior
 
 
+MAX_END_CONFIGURATIONS = 729
+"""A coast whose stretches have more configurations of their ends together (9 a stretch) takes its detected ends
+as sure."""
+
+
+def _configurations_count(members: list[Stretch]) -> int:
+    return math.prod(st.ends.masks.shape[0] for st in members)
+
+
 def add_coast(info: tuple[np.ndarray, np.ndarray], members: list[Stretch]) -> tuple[np.ndarray, np.ndarray]:
     """The information plus that of one coast (its stretches share the common error): noise covariance
-    noise_var I + bias^2 tau tau^T, inverted by Sherman-Morrison."""
+    noise_var I + bias^2 tau tau^T, inverted by Sherman-Morrison. A coast whose stretches carry their ends
+    (``Stretch.ends``, the energy form) goes to :func:`add_coast_with_ends`."""
+    if all(st.ends is not None for st in members) and _configurations_count(members) <= MAX_END_CONFIGURATIONS:
+        return add_coast_with_ends(info, members)
     info_matrix, info_vector = info
     A = np.vstack([st.A for st in members])
     y = np.concatenate([st.y for st in members])
@@ -51,6 +64,61 @@ def add_coast(info: tuple[np.ndarray, np.ndarray], members: list[Stretch]) -> tu
     info_matrix = info_matrix + (A.T @ A - gain * np.outer(a_tau, a_tau)) / noise_var
     info_vector = info_vector + (A.T @ y - gain * a_tau * float(tau @ y)) / noise_var
     return info_matrix, info_vector
+
+
+def _end_configurations(members: list[Stretch]) -> np.ndarray:
+    """(configurations, n) bool: every combination of the members' configurations, rows concatenated in order."""
+    masks = members[0].ends.masks
+    for st in members[1:]:
+        other = st.ends.masks
+        masks = np.hstack((np.repeat(masks, other.shape[0], axis=0), np.tile(other, (masks.shape[0], 1))))
+    return masks
+
+
+def add_coast_with_ends(info: tuple[np.ndarray, np.ndarray], members: list[Stretch]) -> tuple[np.ndarray, np.ndarray]:
+    """The information after one coast in the energy form whose stretch ends are uncertain (``Stretch.ends``,
+    docs/estimator.md "Coasts at 10 s sampling"): assumed-density filtering over the configurations of its ends.
+
+    For each configuration c (which samples coast), with the current N(m, P) of r, E = U E0 + H r + n, E0 one flat
+    nuisance per stretch (U its indicator columns), n ~ N(0, C_c), C_c = diag(var + effort_var where not coasting)
+    + bias^2 d d^T (the coast's common error along the distance d): K = C_c + H P H^T, the restricted likelihood
+    (E0 integrated out) Q = K^-1 - K^-1 U (U^T K^-1 U)^-1 U^T K^-1, the log evidence
+    -1/2 (log|K| + log|U^T K^-1 U| + e^T Q e) with e = E - H m, and the update m_c = m + P H^T Q e,
+    P_c = P - P H^T Q H P. The configurations (equally likely a priori) are weighted by their evidence and
+    moment-matched to one Gaussian: mean sum w_c m_c, covariance sum w_c (P_c + (m_c - mean)(m_c - mean)^T)."""
+    m, P = solve_information(info)
+    ends = [st.ends for st in members]
+    E = np.concatenate([x.E for x in ends])
+    H = np.vstack([x.H for x in ends])
+    var = np.concatenate([x.var for x in ends])
+    effort_var = np.concatenate([x.effort_var for x in ends])
+    d = np.concatenate([x.distance for x in ends])
+    U = np.zeros((E.size, len(ends)))
+    row = 0
+    for j, x in enumerate(ends):
+        U[row : row + x.E.size, j] = 1.0
+        row += x.E.size
+    bias = max(st.bias_std for st in members)
+    e = E - H @ m
+    HP = H @ P
+    shared = HP @ H.T + bias * bias * np.outer(d, d)
+    coasting = _end_configurations(members)  # (c, n)
+    K = shared + np.einsum("ci,ij->cij", var + np.where(coasting, 0.0, effort_var), np.eye(E.size))
+    K_inv = np.linalg.inv(K)
+    KU = K_inv @ U
+    UKU = U.T @ KU  # (c, stretches, stretches)
+    Q = K_inv - KU @ np.linalg.solve(UKU, np.swapaxes(KU, 1, 2))
+    log_w = -0.5 * (np.linalg.slogdet(K)[1] + np.linalg.slogdet(UKU)[1] + np.einsum("i,cij,j->c", e, Q, e))
+    gain = HP.T @ Q  # (c, 3, n)
+    means = m + gain @ e
+    covs = P - gain @ HP
+    w = np.exp(log_w - log_w.max())
+    w /= w.sum()
+    mean = w @ means
+    spread = means - mean
+    cov = np.einsum("c,cij->ij", w, covs) + np.einsum("c,ci,cj->ij", w, spread, spread)
+    info_matrix = np.linalg.inv(0.5 * (cov + cov.T))
+    return info_matrix, info_matrix @ mean
 
 
 def coasts_of(stretches: list[Stretch]) -> list[list[Stretch]]:

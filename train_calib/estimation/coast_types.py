@@ -5,6 +5,7 @@ equations (Stretch); shared by the time form (:mod:`coast_detection`, :mod:`coas
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -29,6 +30,7 @@ class CoastSettings:
     coast_min_speed: float = 5.0
     coast_energy_period: float = 5.0  # s
     coast_energy_window: float = 4.0  # samples
+    coast_energy_end_effort: float = 0.5  # N/kg
     coast_energy_grade_error: float = 0.1  # of r
     use_power: bool = True
     power_coasting: bool = True
@@ -140,6 +142,20 @@ class RunArrays:
         return RunArrays(**cut)
 
 
+class EndMixture(NamedTuple):
+    """A stretch in the energy form with its ends uncertain (:func:`coast_energy.end_mixture`): the samples from the
+    outer neighbour before its first sample to the one after its last, E = E0 + H r + noise over them, and the
+    configurations of which samples coast. A sample outside a configuration's coasting part keeps its equation with
+    the variance of an effort over its step added."""
+
+    E: np.ndarray  # (n,) v^2/2 + Gamma(s), J/kg
+    H: np.ndarray  # (n, 3) -(s - s_a, integral of v ds, integral of v^2 (1 + f_tun tunnel) ds): m, m^2/s, m^3/s^2
+    var: np.ndarray  # (n,) the noise variance of E, (J/kg)^2
+    effort_var: np.ndarray  # (n,) the variance added where a sample is not coasting, (J/kg)^2
+    distance: np.ndarray  # (n,) s - s at the stretch's first sample, m (the direction of the coast's common error)
+    masks: np.ndarray  # (configurations, n) bool: the samples taken as coasting in each configuration
+
+
 @dataclass
 class Stretch:
     """One coasting stretch used by the regression: its samples' centred equations y = A r + noise (step 5)."""
@@ -155,3 +171,4 @@ class Stretch:
     bias_std: float  # N/kg, std of the error common to the coast
     run: int = 0
     group: int = 0  # stretches of one coast (split by a short gap) share their bias
+    ends: EndMixture | None = None  # energy form: the samples around the stretch and its configurations of ends

@@ -215,6 +215,15 @@ class UKFConfig(ParamSet):
     coast_energy_window: int = param(
         4, "coast_regression, energy form: samples in one window of the coasting test", low=3, high=50
     )
+    coast_energy_end_effort: float = param(
+        0.5,
+        "coast_regression, energy form: a coast starts and ends between two samples, so each end sample of a stretch "
+        "and its outer neighbour may hold an effort in their step; that effort's std over the whole step (a leaked "
+        "sample's energy std: this x v x the period). Each configuration of the ends is weighed by its evidence; 0 "
+        "takes the detected ends as sure",
+        unit="N/kg",
+        low=0.0,
+    )
     coast_energy_grade_error: float = param(
         0.1,
         "coast_regression: the energy form needs the gradient to change within the steps: the median over the "
