@@ -92,6 +92,27 @@ def test_a_truth_file_given_without_resistance_is_refused_in_one_line(bag_with_f
     assert f"{foreign}: not a truth file with resistance r0, r1, r2" in line
 
 
+def test_a_validation_truth_beside_the_bag_is_used_and_a_broken_one_noted(tmp_path, capsys):
+    """<bag>.validation-truth.json (../shared/validation: r0, r1, r2 at the top level) is the truth when the
+    simulator's <bag>.truth.json is absent; without r0, r1, r2 it is noted and the replay goes on."""
+    bag = tmp_path / "bag" / BAG.name
+    shutil.copytree(BAG, bag)
+    resistance = json.loads((BAG.parent / f"{BAG.name}.truth.json").read_text())["resistance"]
+    validation = bag.parent / f"{BAG.name}.validation-truth.json"
+    validation.write_text(json.dumps({**{k: resistance[k] for k in ("r0", "r1", "r2")}, "style": "pi"}))
+    out = tmp_path / "o"
+    argv = ["replay", str(bag), "--track", "intercity_32km", "--train", "virm6", "--out", str(out), "--no-report"]
+    assert cli.main([*argv, "--quiet"]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["truth_file"] == str(validation)
+    assert summary["final"]["r0"]["truth"] == resistance["r0"]
+    validation.write_text(json.dumps({"r0": 0.01, "style": "pi"}))
+    assert cli.main([*argv, "--overwrite"]) == 0
+    notes = [ln for ln in capsys.readouterr().err.splitlines() if ln.startswith("note:")]
+    assert len(notes) == 1 and "validation-truth.json: not a truth file with resistance r0, r1, r2" in notes[0]
+    assert json.loads((out / "summary.json").read_text())["truth_file"] is None
+
+
 def test_demo_with_a_missing_bag_names_it_and_lists_the_bundled_bags(capsys):
     line = _one_line(capsys, ["demo", "--bag", "intercity_99"], 2)
     assert line.startswith("train-calib demo: error: --bag intercity_99: no such bag")

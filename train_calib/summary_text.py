@@ -119,7 +119,9 @@ def _format_resistance(summary: dict[str, Any]) -> list[str]:
         lines.append(f"r(v) N/kg, {label}: " + ", ".join(parts))
     if best is not None:
         if best["learnt"]:
-            lines.append(f"  learnt from {best['coasting_stretches']} coasting stretches ({best['coasting_s']:.0f} s)")
+            count = best["coasting_stretches"]
+            noun = "stretch" if count == 1 else "stretches"
+            lines.append(f"  learnt from {count} coasting {noun} ({best['coasting_s']:.0f} s)")
         else:
             lines.append("  no coasting stretch found: the estimate is the train file's values with the prior's sigma")
     return lines

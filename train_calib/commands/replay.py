@@ -127,8 +127,9 @@ def add_common_arguments(parser: argparse.ArgumentParser) -> None:
         "--truth",
         type=Path,
         metavar="FILE",
-        help="simulated truth JSON with resistance r0, r1, r2 to compare with (default: <bag>.truth.json when it is "
-        "the simulator's own; any other file there is ignored with a note)",
+        help="simulated truth JSON with resistance r0, r1, r2 to compare with: the simulator's or a validation run's "
+        "(default: <bag>.truth.json when it is the simulator's own, else <bag>.validation-truth.json; any other file "
+        "there is ignored with a note)",
     )
     parser.add_argument("--overwrite", action="store_true", help="replace the outputs of a previous replay in DIR")
     parser.add_argument("--no-report", action="store_true", help="do not draw report.png")
@@ -140,12 +141,16 @@ def add_common_arguments(parser: argparse.ArgumentParser) -> None:
 SIM_TRUTH_FORMAT = "train_calib.sim/"  # the "format" of the simulator's <bag>.truth.json ("train_calib.sim/1")
 
 
+VALIDATION_TRUTH_SUFFIX = ".validation-truth.json"  # ../shared/validation/README.md: r0, r1, r2 at the top level
+
+
 def read_truth_file(path: Path) -> dict[str, Any]:
-    """The simulated resistance of a truth JSON (``{"resistance": {"r0", "r1", "r2"}, ...}``); BagError (one line)
-    when it has none."""
+    """The simulated resistance of a truth JSON: the simulator's (``{"resistance": {"r0", "r1", "r2"}, ...}``) or a
+    validation truth (``NAME.validation-truth.json``: ``r0``, ``r1``, ``r2`` in N/kg at the top level); BagError (one
+    line) when it has none."""
     try:
         meta = json.loads(path.read_text(encoding="utf-8"))
-        resistance = meta["resistance"]
+        resistance = meta["resistance"] if isinstance(meta, dict) and "resistance" in meta else meta
         values = {k: float(resistance[k]) for k in ("r0", "r1", "r2")}
     except FileNotFoundError:
         raise BagError(f"{path}: truth file not found") from None
@@ -160,15 +165,24 @@ def load_truth(
     bag: Path, truth_file: Path | None = None, note: Callable[[str], None] | None = None
 ) -> dict[str, Any] | None:
     """The simulated truth: `truth_file` when given (--truth; BagError when it holds none), else ``<bag>.truth.json``
-    when it is the simulator's own (``"format": "train_calib.sim/N"`` with the resistance), else None. Any other
-    file beside the bag never stops a replay: it is ignored with a one-line `note`."""
+    when it is the simulator's own (``"format": "train_calib.sim/N"`` with the resistance), else
+    ``<bag>.validation-truth.json`` (the validation runs' truth), else None. Any other file beside the bag never
+    stops a replay: it is ignored with a one-line `note`."""
     from ..sim.truthio import truth_paths
 
     if truth_file is not None:
         return read_truth_file(Path(truth_file))
     path = truth_paths(bag)[1]
     if not path.is_file():
-        return None
+        validation = path.with_name(path.name.removesuffix(".truth.json") + VALIDATION_TRUTH_SUFFIX)
+        if not validation.is_file():
+            return None
+        try:
+            return read_truth_file(validation)
+        except BagError as exc:
+            if note is not None:
+                note(f"note: {exc}; ignored (--truth FILE gives the truth)")
+            return None
     try:
         meta = json.loads(path.read_text(encoding="utf-8"))
         simulated = isinstance(meta, dict) and str(meta.get("format", "")).startswith(SIM_TRUTH_FORMAT)
