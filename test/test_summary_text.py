@@ -32,3 +32,11 @@ def test_configuration_and_r_of_v_with_sigma_and_the_prior_said():
     assert "Configuration: ukf preset learning" in text
     assert "on board (last message): 80 km/h 0.0300 +- 0.0020 (+20.0 % vs manuf.)" in text
     assert "no coasting stretch found: the estimate is the train file's values with the prior's sigma" in text
+
+
+def test_the_count_of_coasting_stretches_is_said_in_the_right_number():
+    summary = _summary(last_well_posed=None, pooled=None)
+    summary["best"].update(learnt=True, coasting_stretches=1, coasting_s=16.0)
+    assert "learnt from 1 coasting stretch (16 s)" in format_summary(summary)
+    summary["best"].update(coasting_stretches=2, coasting_s=100.0)
+    assert "learnt from 2 coasting stretches (100 s)" in format_summary(summary)
