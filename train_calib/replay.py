@@ -59,6 +59,9 @@ rate. The on-board 1 s would put one status beside every sample of a 1 Hz bag an
 bench's graph on the 1 Hz tunnel bag); 60 s costs under one (the statuses carry running counters, and the replay's
 summary has the final ones)."""
 
+LIVE_ACK_TIMEOUT_S = 10.0
+"""With --live: the longest wait (s) for the subscribers in the caller's environment to acknowledge the outputs."""
+
 
 @dataclass
 class _Progress:
@@ -307,9 +310,27 @@ class Replay(FlowControl):
         rec_node.destroy_node()
         self.node.destroy_node()
         if self.live_node is not None:
+            self._wait_live_acknowledged()
             self.live_node.destroy_node()
         for name, level in restore_levels.items():
             set_logger_level(name, level)
+
+    def _wait_live_acknowledged(self, timeout_s: float = LIVE_ACK_TIMEOUT_S) -> None:
+        """With ``live``: before its publishers go, every output forwarded into the caller's environment is
+        acknowledged by the reliable subscribers there (a DAS), or ``timeout_s`` has passed; a topic left
+        unacknowledged is logged. Without the wait the last messages (each run's features, at its end) could go
+        with the publisher."""
+        from rclpy.duration import Duration
+
+        deadline = time.monotonic() + timeout_s
+        late = [
+            topic
+            for topic, publisher in self.live_outputs.items()
+            if not publisher.wait_for_all_acked(Duration(seconds=max(deadline - time.monotonic(), 0.0)))
+        ]
+        if late:
+            topics = ", ".join(late)
+            self._log(f"not acknowledged after {timeout_s:g} s by the subscribers in your environment: {topics}")
 
     def _result(
         self, inputs: BagInputs, writer: Any, graph: Any, executor_name: str, progress: _Progress, wall_s: float
