@@ -244,7 +244,12 @@ def test_a_separate_das_process_receives_every_message(bag, reference, tmp_path)
         if das.poll() is None:
             das.kill()
     received = json.loads(out.strip().splitlines()[-1])
-    assert {t: len(v) for t, v in received.items()} == {t: result.recorded[t] for t in received}
+    stamps = {  # what the graph published, per topic, to name what a failure lost
+        "/train_calib/resistance": [e.stamp_ns for e in reference.estimates],
+        "/train_calib/features": [f.stamp_ns for f in reference.features],
+    }
+    missing = {t: sorted(set(s) - {r[0] for r in received.get(t, [])}) for t, s in stamps.items()}
+    assert {t: len(v) for t, v in received.items()} == {t: result.recorded[t] for t in received}, missing
     assert [r[0] for r in received["/train_calib/resistance"]] == [e.stamp_ns for e in reference.estimates]
     assert [r[1:4] for r in received["/train_calib/resistance"]] == [[e.r0, e.r1, e.r2] for e in reference.estimates]
     assert [r[1] for r in received["/train_calib/regime"]] == [r.regime for r in reference.regimes]
