@@ -204,6 +204,7 @@ class Replay(FlowControl):
         """With a live context (``live``), a second node in the caller's environment: publishes the inputs, /clock
         and the outputs there, never subscribes."""
         import rclpy
+        from rclpy.qos import DurabilityPolicy
         from rosgraph_msgs.msg import Clock
 
         from .nodes.qos import reliable_qos
@@ -220,9 +221,12 @@ class Replay(FlowControl):
             t: self.live_node.create_publisher(message_class(ty), t, qos) for t, ty in inputs.topics.items()
         }
         self.live_pubs["/clock"] = self.live_node.create_publisher(Clock, "/clock", reliable_qos(10))
+        # transient local: a subscriber that asks for it gets every output from the first, whichever side of the
+        # discovery matched first (a volatile one gets those published after it matched our publisher)
+        kept = reliable_qos(1000)
+        kept.durability = DurabilityPolicy.TRANSIENT_LOCAL
         self.live_outputs = {
-            t: self.live_node.create_publisher(message_class(ty), t, reliable_qos(1000))
-            for t, ty in OUTPUT_TOPICS.items()
+            t: self.live_node.create_publisher(message_class(ty), t, kept) for t, ty in OUTPUT_TOPICS.items()
         }
 
     def _start_graph(self, context: Any, track_path: Path, train_path: Path) -> Any:

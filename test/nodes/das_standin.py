@@ -12,7 +12,7 @@ import time
 
 import rclpy
 from rclpy.context import Context
-from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
 from train_calib_msgs.msg import DrivingFeatures, DrivingRegime, ResistanceEstimate, TrackMeasurement, WindowResistance
 
@@ -32,7 +32,13 @@ def main() -> int:
     context = Context()
     rclpy.init(args=[], context=context, signal_handler_options=SignalHandlerOptions.NO)
     node = rclpy.create_node("das_standin", context=context)
-    qos = QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE)
+    # transient local: every output from the first, even if this side matches the replay's publishers after it has
+    # begun (docs/nodes.md, QoS)
+    qos = QoSProfile(
+        history=HistoryPolicy.KEEP_ALL,
+        reliability=ReliabilityPolicy.RELIABLE,
+        durability=DurabilityPolicy.TRANSIENT_LOCAL,
+    )
     received = {t: [] for t in TOPICS}
     last = [time.monotonic()]
     for topic, (cls, fields) in TOPICS.items():
