@@ -223,8 +223,7 @@ class Replay(FlowControl):
         self.live_pubs["/clock"] = self.live_node.create_publisher(Clock, "/clock", reliable_qos(10))
         # transient local: a subscriber that asks for it gets every output from the first, whichever side of the
         # discovery matched first (a volatile one gets those published after it matched our publisher)
-        kept = reliable_qos(1000)
-        kept.durability = DurabilityPolicy.TRANSIENT_LOCAL
+        kept = reliable_qos(1000, DurabilityPolicy.TRANSIENT_LOCAL)
         self.live_outputs = {
             t: self.live_node.create_publisher(message_class(ty), t, kept) for t, ty in OUTPUT_TOPICS.items()
         }

@@ -173,25 +173,22 @@ def load_truth(
     if truth_file is not None:
         return read_truth_file(Path(truth_file))
     path = truth_paths(bag)[1]
+    validation = path.with_name(path.name.removesuffix(".truth.json") + VALIDATION_TRUTH_SUFFIX)
     if not path.is_file():
-        validation = path.with_name(path.name.removesuffix(".truth.json") + VALIDATION_TRUTH_SUFFIX)
         if not validation.is_file():
             return None
-        try:
-            return read_truth_file(validation)
-        except BagError as exc:
-            if note is not None:
-                note(f"note: {exc}; ignored (--truth FILE gives the truth)")
-            return None
+        path = validation
     try:
         meta = json.loads(path.read_text(encoding="utf-8"))
-        simulated = isinstance(meta, dict) and str(meta.get("format", "")).startswith(SIM_TRUTH_FORMAT)
-        truth = read_truth_file(path) if simulated else None
+        known = path == validation or (
+            isinstance(meta, dict) and str(meta.get("format", "")).startswith(SIM_TRUTH_FORMAT)
+        )
+        truth = read_truth_file(path) if known else None
     except (OSError, ValueError, BagError) as exc:
-        simulated, truth = False, None
+        known, truth = False, None
         reason = str(exc).removeprefix(f"{path}: ")
     else:
-        reason = "not the simulator's truth format" if not simulated else ""
+        reason = "not the simulator's truth format" if not known else ""
     if truth is None and note is not None:
         note(f"note: {path}: {reason or 'unreadable'}; ignored (--truth FILE gives the truth)")
     return truth

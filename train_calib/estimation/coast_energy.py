@@ -284,6 +284,14 @@ def _neighbour(arr: RunArrays, k: int, edge: int, settings: CoastSettings, perio
     )
 
 
+def neighbour_limits(spans: list[tuple[int, int]], first: int, last: int) -> list[tuple[int, int]]:
+    """Per stretch (k0, k1) in order, the samples (lo, hi) its outer neighbours may come from: after the stretch
+    before it (from ``first``), before the stretch after it (up to ``last``)."""
+    lows = [first] + [k1 + 1 for _, k1 in spans[:-1]]
+    highs = [k0 - 1 for k0, _ in spans[1:]] + [last]
+    return list(zip(lows, highs))
+
+
 def end_mixture(
     arr: RunArrays,
     k0: int,
@@ -368,6 +376,7 @@ __all__ = [
     "energy_noise_var",
     "energy_sigma_v",
     "energy_terms",
+    "neighbour_limits",
     "refine",
     "step_grade_error",
     "uses_energy_form",

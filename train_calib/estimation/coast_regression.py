@@ -57,7 +57,14 @@ from .coast_detection import (
     slope_window,
     speed_noise,
 )
-from .coast_energy import energy_bounds, energy_equations, energy_sigma_v, step_grade_error, uses_energy_form
+from .coast_energy import (
+    energy_bounds,
+    energy_equations,
+    energy_sigma_v,
+    neighbour_limits,
+    step_grade_error,
+    uses_energy_form,
+)
 from .coast_posterior import (
     add_coast,
     nonnegative,
@@ -179,12 +186,10 @@ def fit_coasts(
             sv_e = energy_sigma_v(part, sv)
             bounds, _ = energy_bounds(part, cfg, r_prior, sv_e, period)
             window = cfg.coast_energy_window * period
-            # a stretch's outer neighbours are not inside the stretches before and after it
-            lows = [0] + [b[1] + 1 for b in bounds[:-1]]
-            highs = [b[0] - 1 for b in bounds[1:]] + [part.t.size - 1]
+            spans = [(k0, k1) for k0, k1, _, _ in bounds]
             equations = [
                 energy_equations(part, k0, k1, cfg, r_prior, sv_e, train.tunnel_factor, period, lo, hi)
-                for (k0, k1, _, _), lo, hi in zip(bounds, lows, highs)
+                for (k0, k1), (lo, hi) in zip(spans, neighbour_limits(spans, 0, part.t.size - 1))
             ]
         else:
             bounds, _, window = detect(part, cfg, r_prior, sv)
@@ -438,11 +443,9 @@ class CoastRegression:
                 continue
             over = k1 + m <= n - 1 or bool(np.any(broken[k1 + 1 : k1 + m + 1]))
             (pieces if over and k1 + 1 < n else waiting).append((k0, k1))
-        lows = [first_used] + [k1 + 1 for _, k1 in pieces[:-1]]  # outer neighbours: not used, not in another piece
-        highs = [k0 - 1 for k0, _ in pieces[1:]] + [n - 1]
-        make = [
+        make = [  # outer neighbours: not used yet, not in another piece
             energy_equations(arr, k0, k1, cfg, self.prior, sv_e, self.tunnel_factor, period, lo, hi)
-            for (k0, k1), lo, hi in zip(pieces, lows, highs)
+            for (k0, k1), (lo, hi) in zip(pieces, neighbour_limits(pieces, first_used, n - 1))
         ]
         horizon = arr.t[-1] - m * period
         if waiting:
