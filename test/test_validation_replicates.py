@@ -69,3 +69,19 @@ def test_bad_names_exit_2(capsys: pytest.CaptureFixture[str]) -> None:
     assert "--families: unknown ['nope']" in capsys.readouterr().err
     assert replicates.main(["--replicates", "0"]) == 2
     assert "--replicates: 0" in capsys.readouterr().err
+
+
+def test_coast_consistency_of_a_draw_and_its_table(capsys) -> None:
+    """bench/validation/coast_consistency.py: a draw of an eco run has its two coasts in the energy form, NIS/dof
+    of the order of 1 (measured 0.2-0.9 over the family, the stated 1 km/h being twice the variance seen), and the
+    table counts it; a family name that is not one exits 2 naming --families."""
+    consistency = validation_module("coast_consistency")
+    name, split, worse, nis, dof = consistency.one_draw((RUN, 0))
+    assert (name, split) == (RUN, "report")
+    assert dof >= 8 and 0.05 < nis / dof < 3.0
+    table = consistency.markdown([(name, split, worse, nis, dof)], 1)
+    assert f"| report | 1 | {nis / dof:.2f} " in table
+    with pytest.raises(SystemExit) as exc:
+        consistency.main(["--families", "eco_nowhere"])
+    assert exc.value.code == 2
+    assert "--families" in capsys.readouterr().err

@@ -16,7 +16,7 @@ from repo_paths import REPO
 from scipy.integrate import cumulative_trapezoid, solve_ivp
 
 from train_calib.estimation.coast_energy import energy_bounds, energy_equations, uses_energy_form
-from train_calib.estimation.coast_posterior import posterior, prior_covariance
+from train_calib.estimation.coast_posterior import coast_consistency, posterior, prior_covariance, prior_information
 from train_calib.estimation.coast_regression import (
     CoastRegression,
     CoastSettings,
@@ -445,7 +445,7 @@ def test_the_mixture_equals_an_explicit_enumeration(track, train):
     y = np.concatenate([b[0] for b in blocks])
     d = np.concatenate([b[4] for b in blocks])
     bias = max(st.bias_std for _, st in parts)
-    logs, means, covs = [], [], []
+    logs, means, covs, nis = [], [], [], []
     for choice in itertools.product(*(b[5] for b in blocks)):
         extra = []
         for (i0, i1), b in zip(choice, blocks):
@@ -454,6 +454,7 @@ def test_the_mixture_equals_an_explicit_enumeration(track, train):
         C = np.diag(np.concatenate([b[2] for b in blocks]) + np.concatenate(extra)) + bias**2 * np.outer(d, d)
         S = H @ P_aug @ H.T + C
         logs.append(multivariate_normal(H @ x0, S).logpdf(y))
+        nis.append(float((y - H @ x0) @ np.linalg.solve(S, y - H @ x0)))  # E0's share vanishes as 1 / big^2
         K = np.linalg.solve(S, H @ P_aug).T
         means.append((x0 + K @ (y - H @ x0))[:3])
         covs.append((P_aug - K @ H @ P_aug)[:3, :3])
@@ -463,3 +464,7 @@ def test_the_mixture_equals_an_explicit_enumeration(track, train):
     cov = sum(wi * (c + np.outer(m - mean, m - mean)) for wi, m, c in zip(w, means, covs))
     np.testing.assert_allclose(mean_fast, mean, rtol=1e-6)
     np.testing.assert_allclose(cov_fast, cov, rtol=1e-5)
+    # the coast's consistency (bench/validation/coast_consistency.py): the weighted NIS and samples less E0s
+    fast_nis, dof = coast_consistency(prior_information(prior, p0), [st for _, st in parts])
+    assert dof == y.size - 2
+    assert fast_nis == pytest.approx(float(w @ np.array(nis)), rel=1e-5)  # measured 1.3e-6

@@ -7,6 +7,7 @@ onto r >= 0.
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 
@@ -75,18 +76,18 @@ def _end_configurations(members: list[Stretch]) -> np.ndarray:
     return masks
 
 
-def add_coast_with_ends(info: tuple[np.ndarray, np.ndarray], members: list[Stretch]) -> tuple[np.ndarray, np.ndarray]:
-    """The information after one coast in the energy form whose stretch ends are uncertain (``Stretch.ends``,
-    docs/estimator.md "Coasts at 10 s sampling"): assumed-density filtering over the configurations of its ends.
+class _EndTerms(NamedTuple):
+    """The terms of one coast's configurations of ends (:func:`_end_terms`); c configurations, n samples."""
 
-    For each configuration c (which samples coast), with the current N(m, P) of r, E = U E0 + H r + n, E0 one flat
-    nuisance per stretch (U its indicator columns), n ~ N(0, C_c), C_c = diag(var + effort_var where not coasting)
-    + bias^2 d d^T (the coast's common error along the distance d): K = C_c + H P H^T, the restricted likelihood
-    (E0 integrated out) Q = K^-1 - K^-1 U (U^T K^-1 U)^-1 U^T K^-1, the log evidence
-    -1/2 (log|K| + log|U^T K^-1 U| + e^T Q e) with e = E - H m, and the update m_c = m + P H^T Q e,
-    P_c = P - P H^T Q H P. The configurations (equally likely a priori) are weighted by their evidence and
-    moment-matched to one Gaussian: mean sum w_c m_c, covariance sum w_c (P_c + (m_c - mean)(m_c - mean)^T)."""
-    m, P = solve_information(info)
+    e: np.ndarray  # (n,) J/kg: the innovation E - H m
+    HP: np.ndarray  # (n, 3): H P
+    Q: np.ndarray  # (c, n, n): the restricted precision of the innovation (E0 integrated out)
+    weights: np.ndarray  # (c,): the configurations' posterior weights, summing to 1
+    dof: int  # n less one E0 per stretch
+
+
+def _end_terms(m: np.ndarray, P: np.ndarray, members: list[Stretch]) -> _EndTerms:
+    """Per configuration of the members' ends, given the current N(m, P) of r: see :func:`add_coast_with_ends`."""
     ends = [st.ends for st in members]
     E = np.concatenate([x.E for x in ends])
     H = np.vstack([x.H for x in ends])
@@ -109,16 +110,42 @@ def add_coast_with_ends(info: tuple[np.ndarray, np.ndarray], members: list[Stret
     UKU = U.T @ KU  # (c, stretches, stretches)
     Q = K_inv - KU @ np.linalg.solve(UKU, np.swapaxes(KU, 1, 2))
     log_w = -0.5 * (np.linalg.slogdet(K)[1] + np.linalg.slogdet(UKU)[1] + np.einsum("i,cij,j->c", e, Q, e))
-    gain = HP.T @ Q  # (c, 3, n)
-    means = m + gain @ e
-    covs = P - gain @ HP
     w = np.exp(log_w - log_w.max())
     w /= w.sum()
-    mean = w @ means
+    return _EndTerms(e, HP, Q, w, E.size - len(ends))
+
+
+def add_coast_with_ends(info: tuple[np.ndarray, np.ndarray], members: list[Stretch]) -> tuple[np.ndarray, np.ndarray]:
+    """The information after one coast in the energy form whose stretch ends are uncertain (``Stretch.ends``,
+    docs/estimator.md "Coasts at 10 s sampling"): assumed-density filtering over the configurations of its ends.
+
+    For each configuration c (which samples coast), with the current N(m, P) of r, E = U E0 + H r + n, E0 one flat
+    nuisance per stretch (U its indicator columns), n ~ N(0, C_c), C_c = diag(var + effort_var where not coasting)
+    + bias^2 d d^T (the coast's common error along the distance d): K = C_c + H P H^T, the restricted likelihood
+    (E0 integrated out) Q = K^-1 - K^-1 U (U^T K^-1 U)^-1 U^T K^-1, the log evidence
+    -1/2 (log|K| + log|U^T K^-1 U| + e^T Q e) with e = E - H m, and the update m_c = m + P H^T Q e,
+    P_c = P - P H^T Q H P. The configurations (equally likely a priori) are weighted by their evidence and
+    moment-matched to one Gaussian: mean sum w_c m_c, covariance sum w_c (P_c + (m_c - mean)(m_c - mean)^T)."""
+    m, P = solve_information(info)
+    t = _end_terms(m, P, members)
+    gain = t.HP.T @ t.Q  # (c, 3, n)
+    means = m + gain @ t.e
+    covs = P - gain @ t.HP
+    mean = t.weights @ means
     spread = means - mean
-    cov = np.einsum("c,cij->ij", w, covs) + np.einsum("c,ci,cj->ij", w, spread, spread)
+    cov = np.einsum("c,cij->ij", t.weights, covs) + np.einsum("c,ci,cj->ij", t.weights, spread, spread)
     info_matrix = np.linalg.inv(0.5 * (cov + cov.T))
     return info_matrix, info_matrix @ mean
+
+
+def coast_consistency(info: tuple[np.ndarray, np.ndarray], members: list[Stretch]) -> tuple[float, int]:
+    """(NIS, degrees of freedom) of one coast in the energy form with its ends uncertain, before it is added to
+    ``info``: the restricted normalised innovation e^T Q e averaged over the configurations by their weights, and
+    the samples less one E0 per stretch. Under the stated noise NIS/dof is about 1 (docs/estimator.md, Validation:
+    measured 0.5 on the eco family; bench/validation/coast_consistency.py)."""
+    m, P = solve_information(info)
+    t = _end_terms(m, P, members)
+    return float(t.weights @ np.einsum("i,cij,j->c", t.e, t.Q, t.e)), t.dof
 
 
 def coasts_of(stretches: list[Stretch]) -> list[list[Stretch]]:
