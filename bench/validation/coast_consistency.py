@@ -33,7 +33,6 @@ import score  # noqa: E402
 
 from train_calib.estimation import UKFConfig  # noqa: E402
 from train_calib.estimation.coast_posterior import (  # noqa: E402
-    MAX_END_CONFIGURATIONS,
     add_coast,
     coast_consistency,
     coasts_of,
@@ -69,10 +68,9 @@ def one_draw(args: tuple[str, int]) -> tuple[str, str, bool, float, int]:
     )
     nis, dof = 0.0, 0
     for members in coasts_of(out.best.stretches if out.best is not None else []):
-        energy = all(st.ends is not None for st in members)
-        if energy and np.prod([st.ends.masks.shape[0] for st in members]) <= MAX_END_CONFIGURATIONS:
-            n, d = coast_consistency(info, members)
-            nis, dof = nis + n, dof + d
+        consistency = coast_consistency(info, members)  # None: a coast taken with its ends sure
+        if consistency is not None:
+            nis, dof = nis + consistency[0], dof + consistency[1]
         info = add_coast(info, members)
     return name, spec.split, abs(err) > abs(prior_err) + score.WORSE_POINTS, nis, dof
 

@@ -217,15 +217,11 @@ def refine(arr: RunArrays, terms: EnergyTerms, idx: np.ndarray, settings: CoastS
         idx = np.delete(idx, worst[0])
     if idx.size < 3:
         return idx
-    gap = min(settings.max_gap, 2.5 * period)
-    n = arr.t.size
     for forward in (False, True):
         while True:
             edge = int(idx[-1] if forward else idx[0])
             k = edge + 1 if forward else edge - 1
-            if not 0 <= k < n or arr.run[k] != arr.run[edge] or arr.v[k] < settings.coast_min_speed:
-                break
-            if not 0.0 < abs(arr.t[k] - arr.t[edge]) <= gap:
+            if not _neighbour(arr, k, edge, settings, period):
                 break
             grown = np.append(idx, k) if forward else np.insert(idx, 0, k)
             if _leave_one_out(E, R, w, grown, grown.size - 1 if forward else 0) > GROW_SIGMAS:

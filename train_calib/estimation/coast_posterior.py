@@ -44,15 +44,19 @@ MAX_END_CONFIGURATIONS = 729
 as sure."""
 
 
-def _configurations_count(members: list[Stretch]) -> int:
-    return math.prod(st.ends.masks.shape[0] for st in members)
+def _uses_end_mixture(members: list[Stretch]) -> bool:
+    """The coast's stretches carry their ends (the energy form) and have at most MAX_END_CONFIGURATIONS together."""
+    return (
+        all(st.ends is not None for st in members)
+        and math.prod(st.ends.masks.shape[0] for st in members) <= MAX_END_CONFIGURATIONS
+    )
 
 
 def add_coast(info: tuple[np.ndarray, np.ndarray], members: list[Stretch]) -> tuple[np.ndarray, np.ndarray]:
     """The information plus that of one coast (its stretches share the common error): noise covariance
     noise_var I + bias^2 tau tau^T, inverted by Sherman-Morrison. A coast whose stretches carry their ends
     (``Stretch.ends``, the energy form) goes to :func:`add_coast_with_ends`."""
-    if all(st.ends is not None for st in members) and _configurations_count(members) <= MAX_END_CONFIGURATIONS:
+    if _uses_end_mixture(members):
         return add_coast_with_ends(info, members)
     info_matrix, info_vector = info
     A = np.vstack([st.A for st in members])
@@ -138,11 +142,14 @@ def add_coast_with_ends(info: tuple[np.ndarray, np.ndarray], members: list[Stret
     return info_matrix, info_matrix @ mean
 
 
-def coast_consistency(info: tuple[np.ndarray, np.ndarray], members: list[Stretch]) -> tuple[float, int]:
+def coast_consistency(info: tuple[np.ndarray, np.ndarray], members: list[Stretch]) -> tuple[float, int] | None:
     """(NIS, degrees of freedom) of one coast in the energy form with its ends uncertain, before it is added to
     ``info``: the restricted normalised innovation e^T Q e averaged over the configurations by their weights, and
-    the samples less one E0 per stretch. Under the stated noise NIS/dof is about 1 (docs/estimator.md, Validation:
-    measured 0.5 on the eco family; bench/validation/coast_consistency.py)."""
+    the samples less one E0 per stretch; None for a coast that :func:`add_coast` takes with its ends sure. Under the
+    stated noise NIS/dof is about 1 (docs/estimator.md, Validation: measured 0.5 on the eco family;
+    bench/validation/coast_consistency.py)."""
+    if not _uses_end_mixture(members):
+        return None
     m, P = solve_information(info)
     t = _end_terms(m, P, members)
     return float(t.weights @ np.einsum("i,cij,j->c", t.e, t.Q, t.e)), t.dof
